@@ -1,0 +1,177 @@
+"""Contact laws and their statistical linearization for a Gaussian deflection.
+
+A contact acts along a direction ``g`` with deflection ``delta = g^T q``; its force is ``f(delta)`` with
+stiffness ``k`` (N/m) and half-clearance ``b`` (m). The backlash law is thesis Eq. 3.32 (= Eq. 4.9):
+
+    f(delta) = k (delta - b)   for delta >= b
+               0               for |delta| < b
+               k (delta + b)   for delta <= -b
+
+Statistical linearization replaces ``f`` by ``k_e (delta - mu) + f_0`` for ``delta ~ N(mu, sigma^2)``.
+
+Criteria (the ``criterion`` argument):
+
+``"force"``
+    Minimum mean-square force error, thesis Eqs. 3.35-3.38: ``k_e = E[f']``, ``f_0 = E[f]``; closed forms
+    Eqs. 3.39-3.42 (the erf forms). We evaluate them through the standard-normal quantities below, which are
+    algebraically identical to Eqs. 3.39-3.40 but free of the cancellation that ``erf(V1) - erf(V2)`` suffers
+    when ``sigma << b``.
+``"energy"`` (default of the energy family)
+    Minimum mean-square error of the potential energy of the *fluctuating* part (thesis ch. 4, Eqs. 4.31-4.43,
+    as corrected in shared/seeds/ERRATA.md): minimizing
+    ``E[(P(mu + y) - P(mu) - k_e y^2 / 2 - f_0 y)^2]`` over ``(k_e, f_0)`` with ``y ~ N(0, sigma^2)`` gives, by
+    Stein's lemma, ``f_0 = E[f]`` (Eq. 4.49) and
+    ``k_e = 2/3 (E[f'] + (E[P] - P(mu)) / sigma^2)``.
+    For a linear spring (b = 0) or permanent contact this returns ``k`` exactly.
+``"energy_origin"``
+    Eq. 4.43 as printed, ``k_e = 2/3 (E[f'] + E[P] / sigma^2)``, with the potential measured about the origin.
+    Kept only to reproduce/diagnose the thesis; under a static load it overestimates ``k_e`` by
+    ``(mu - b)^2 / (3 sigma^2)`` in relative terms.
+
+The potential is the continuous one, ``P = k (delta -/+ b)^2 / 2`` outside the gap and 0 inside. Eq. 4.32 as
+printed (``k delta^2/2 - k b delta``) differs by the constant ``-k b^2/2`` and is discontinuous at ``+-b``,
+which breaks the integration by parts (Stein's lemma) the derivation rests on.
+
+Numerics: with ``z = (mu - b) / sigma`` the expectations are ``sigma`` times functions of ``z`` built from
+``Phi`` (via ``erfc``, relatively accurate in the tails) and ``phi``; ``z`` is clipped to +-40 where these
+functions are exactly saturated in float64, so every coefficient is finite and differentiable for every
+``sigma >= 0`` (``sigma = 0`` gives the deterministic limit ``k_e = f'(mu)``, ``f_0 = f(mu)``) and for ``b = 0``.
+"""
+
+from __future__ import annotations
+
+import abc
+from typing import NamedTuple
+
+import equinox as eqx
+import jax.numpy as jnp
+from jax.scipy.special import erfc
+
+_SQRT2 = 1.4142135623730951
+_INV_SQRT_2PI = 0.3989422804014327
+_Z_SATURATION = 40.0
+
+CRITERIA = ("force", "energy", "energy_origin")
+
+
+class Linearization(NamedTuple):
+    """Equivalent linear contact ``f ~ k_e (delta - mu) + f_0`` (N/m, N)."""
+
+    k_e: jnp.ndarray
+    f_0: jnp.ndarray
+
+
+def check_criterion(criterion: str) -> None:
+    if criterion not in CRITERIA:
+        raise ValueError(f"`criterion` must be one of {CRITERIA}, got {criterion!r}")
+
+
+def _cdf(z):
+    return 0.5 * erfc(-z / _SQRT2)
+
+
+def _pdf(z):
+    return _INV_SQRT_2PI * jnp.exp(-0.5 * z * z)
+
+
+def _second_moment_ratio(z):
+    """E[(X+)^2] / s^2 for X ~ N(z s, s^2): (z^2 + 1) Phi(z) + z phi(z)."""
+    return (z * z + 1.0) * _cdf(z) + z * _pdf(z)
+
+
+def _excess_second_moment(z):
+    """(E[(X+)^2] - (E[X]+)^2) / s^2 without cancellation.
+
+    For z > 0, E[(X+)^2] = E[X^2] - E[(X-)^2] = s^2 (1 + z^2) - s^2 G(-z), so the excess is 1 - G(-z).
+    """
+    return jnp.where(z > 0.0, 1.0 - _second_moment_ratio(-z), _second_moment_ratio(z))
+
+
+def _standardize(offset, sigma):
+    """z = offset / sigma, saturated to +-40 (exact in float64), sigma = 0 allowed."""
+    positive = sigma > 0.0
+    safe_sigma = jnp.where(positive, sigma, 1.0)
+    z = jnp.where(positive, offset / safe_sigma, jnp.where(offset >= 0.0, _Z_SATURATION, -_Z_SATURATION))
+    return jnp.clip(z, -_Z_SATURATION, _Z_SATURATION)
+
+
+def _positive_part_mean(offset, sigma, z):
+    """E[X+] for X ~ N(offset, sigma^2) = offset Phi(z) + sigma phi(z)."""
+    return offset * _cdf(z) + sigma * _pdf(z)
+
+
+class ContactLaw(eqx.Module):
+    """Extension point: a scalar contact law ``f(delta; k, b)``.
+
+    Subclasses implement ``force``, ``stiffness`` (df/ddelta) and ``potential`` (P with P' = f, P(0) = 0),
+    and ``linearize`` for a Gaussian deflection.
+    """
+
+    @abc.abstractmethod
+    def force(self, delta, k, b): ...
+
+    @abc.abstractmethod
+    def stiffness(self, delta, k, b): ...
+
+    @abc.abstractmethod
+    def potential(self, delta, k, b): ...
+
+    @abc.abstractmethod
+    def linearize(self, mu, sigma, k, b, criterion: str = "force") -> Linearization: ...
+
+    @abc.abstractmethod
+    def force_moments(self, mu, sigma, k, b) -> tuple[jnp.ndarray, jnp.ndarray]:
+        """Mean and standard deviation of f(delta) for delta ~ N(mu, sigma^2)."""
+
+
+class Backlash(ContactLaw):
+    """Piecewise-linear backlash (dead-zone) law, thesis Eq. 3.32 / Eq. 4.9; ``b = 0`` is a linear spring."""
+
+    def force(self, delta, k, b):
+        return k * (jnp.maximum(delta - b, 0.0) - jnp.maximum(-b - delta, 0.0))
+
+    def stiffness(self, delta, k, b):
+        return k * ((delta > b) | (delta < -b)).astype(jnp.result_type(delta, k))
+
+    def potential(self, delta, k, b):
+        return 0.5 * k * (jnp.maximum(delta - b, 0.0) ** 2 + jnp.maximum(-b - delta, 0.0) ** 2)
+
+    def linearize(self, mu, sigma, k, b, criterion: str = "force") -> Linearization:
+        check_criterion(criterion)
+        upper, lower = mu - b, -b - mu  # distance into the two contact flanks
+        z_up, z_lo = _standardize(upper, sigma), _standardize(lower, sigma)
+        contact_probability = _cdf(z_up) + _cdf(z_lo)  # Eq. 3.39 / k
+        f_0 = k * (_positive_part_mean(upper, sigma, z_up) - _positive_part_mean(lower, sigma, z_lo))
+        k_force = k * contact_probability
+        if criterion == "force":
+            return Linearization(k_force, f_0)
+        if criterion == "energy":
+            # (E[P] - P(mu)) / sigma^2, cancellation-free.
+            excess = 0.5 * k * (_excess_second_moment(z_up) + _excess_second_moment(z_lo))
+        else:  # energy_origin: E[P] / sigma^2 with P about the origin (Eq. 4.43 as printed; grows like
+            # (mu - b)^2 / sigma^2 in permanent contact, so it is only meaningful for |mu| < b).
+            excess = 0.5 * k * (_second_moment_ratio(z_up) + _second_moment_ratio(z_lo))
+        return Linearization(2.0 / 3.0 * (k_force + excess), f_0)
+
+    def force_moments(self, mu, sigma, k, b):
+        upper, lower = mu - b, -b - mu
+        z_up, z_lo = _standardize(upper, sigma), _standardize(lower, sigma)
+        mean_up = _positive_part_mean(upper, sigma, z_up)
+        mean_lo = _positive_part_mean(lower, sigma, z_lo)
+        var = _positive_part_variance(upper, sigma, z_up) + _positive_part_variance(lower, sigma, z_lo)
+        # A = (delta-b)+ and B = (-b-delta)+ are never both nonzero: Cov(A, B) = -E[A] E[B].
+        var = var + 2.0 * mean_up * mean_lo
+        return k * (mean_up - mean_lo), k * jnp.sqrt(jnp.maximum(var, 0.0))
+
+
+def _positive_part_variance(offset, sigma, z):
+    """Var[X+] for X ~ N(offset, sigma^2), without cancellation for z >> 0.
+
+    For z > 0 use X+ = X + X- (X- = (-X)+, small): Var = s^2 - E[(X-)^2] - 2 m E[X-] - E[X-]^2.
+    """
+    neg_mean = _positive_part_mean(-offset, sigma, -z)
+    neg_second = sigma * sigma * _second_moment_ratio(-z)
+    var_pos_z = sigma * sigma - neg_second - 2.0 * offset * neg_mean - neg_mean**2
+    pos_mean = _positive_part_mean(offset, sigma, z)
+    var_neg_z = sigma * sigma * _second_moment_ratio(z) - pos_mean**2
+    return jnp.maximum(jnp.where(z > 0.0, var_pos_z, var_neg_z), 0.0)

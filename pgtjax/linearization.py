@@ -1,0 +1,301 @@
+"""Statistical linearization (SL) coupled to the stochastic Newmark mean/covariance recursion.
+
+At every step each contact force is replaced by ``k_e (delta - mu) + f_0`` (thesis Eq. 3.33 / 4.25), whose
+coefficients depend on the mean ``mu`` and standard deviation ``sigma`` of the deflection at the *end* of the
+step (thesis Eqs. 3.39-3.42, or ch. 4's energy criterion; see :mod:`pgtjax.contact`). The linearized system
+``M q'' + C q' + (K + G diag(k_e) G^T) q = F - G (f_0 - k_e mu) + B w`` (Eq. 3.43 / 4.51) is advanced one step
+with the stochastic Newmark scheme (:mod:`pgtjax.newmark`, Eqs. 3.45-3.51 / 4.52-4.60).
+
+Instead of the raw second moment ``R = <Y Y^T>`` with cross terms (Eqs. 3.52-3.53, 4.61-4.62) we propagate
+the mean and the covariance separately (equivalent, better conditioned):
+
+    m_{i+1} = Phi m_i + c_i,     P_{i+1} = Phi P_i Phi^T + Gamma Gamma^T.
+
+The step's fixed point ``(mu, sigma) = T(mu, sigma)`` of the contact deflections is solved by Newton's method
+(Jacobian by forward-mode autodiff; falls back to a plain fixed-point step when a Newton step is not finite).
+Only the contact-space moments are iterated (``W Y W^T`` with ``W = G^T K_eff^-1``), the full covariance update
+is done once per step. Gradients through the converged fixed point use the implicit function theorem: one
+Newton correction with a stopped Jacobian, ``z = z* - J^-1 R(z*, theta)``, whose value is ``z*`` and whose
+derivative is ``-J^-1 dR/dtheta``; the iterations themselves are not differentiated.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .contact import check_criterion
+from .newmark import Snapshot, check_noise_scheme, snapshot, step_matrices
+from .results import MomentResult
+from .system import System, validate_system, validate_time_grid
+
+
+class _StepData(NamedTuple):
+    """Quantities of one step that do not depend on the step-end linearization."""
+
+    k_eff_base: jax.Array
+    mean_rhs: jax.Array  # E m_u + D m_v + F0_lin + F1
+    rhs_covariance: jax.Array  # [E D] P [E D]^T + noise
+    direction: jax.Array
+    contact_stiffness: jax.Array
+    clearance: jax.Array
+
+
+def _safe_sqrt(x):
+    positive = x > 0.0
+    return jnp.where(positive, jnp.sqrt(jnp.where(positive, x, 1.0)), 0.0)
+
+
+def _contact_moments(system: System, z, data: _StepData, criterion: str):
+    """The fixed-point map T: step-end contact moments implied by linearizing at ``z = (mu, sigma)``."""
+    nc = system.n_contacts
+    mu, sigma = z[:nc], z[nc:]
+    lin = system.contacts.law.linearize(mu, sigma, data.contact_stiffness, data.clearance, criterion)
+    g = data.direction
+    k_eff = data.k_eff_base + (g * lin.k_e[None, :]) @ g.T
+    w = jnp.linalg.solve(k_eff.T, g).T  # G^T K_eff^-1, (nc, n)
+    mean = w @ (data.mean_rhs - g @ (lin.f_0 - lin.k_e * mu))
+    var = jnp.sum((w @ data.rhs_covariance) * w, axis=1)
+    return jnp.concatenate([mean, _safe_sqrt(var)])
+
+
+class _FixedPointInfo(NamedTuple):
+    iterations: jax.Array
+    residual: jax.Array
+    converged: jax.Array
+
+
+def _solve_fixed_point(system, z0, data, criterion, rtol, max_iter):
+    nc = system.n_contacts
+    data_const = jax.lax.stop_gradient(data)
+
+    def residual(z, d):
+        return _contact_moments(system, z, d, criterion) - z
+
+    def scaled_norm(r, z):
+        scale = jnp.abs(z[:nc]) + z[nc:] + data_const.clearance + 1e-300
+        return jnp.max(jnp.abs(r) / jnp.concatenate([scale, scale]))
+
+    def body(state):
+        z, it, _ = state
+        r, jac = jax.linearize(lambda zz: residual(zz, data_const), z)
+        jmat = jax.vmap(jac, out_axes=1)(jnp.eye(2 * nc, dtype=z.dtype))
+        z_newton = z + jnp.linalg.solve(jmat, -r)
+        ok = jnp.all(jnp.isfinite(z_newton))
+        z_new = jnp.where(ok, z_newton, z + r)
+        z_new = z_new.at[nc:].set(jnp.maximum(z_new[nc:], 0.0))
+        return z_new, it + 1, scaled_norm(residual(z_new, data_const), z_new)
+
+    def cond(state):
+        _, it, res = state
+        return (it < max_iter) & (res > rtol)
+
+    z0 = jax.lax.stop_gradient(z0)
+    res0 = scaled_norm(residual(z0, data_const), z0)
+    z_star, iters, res = jax.lax.while_loop(cond, body, (z0, jnp.array(0), res0))
+    # Implicit-function-theorem correction: value z*, derivative -J^-1 dR/dtheta.
+    jac_star = jax.jacfwd(lambda zz: residual(zz, data_const))(z_star)
+    z = z_star - jnp.linalg.solve(jax.lax.stop_gradient(jac_star), residual(z_star, data))
+    return z, _FixedPointInfo(iters, res, res <= rtol)
+
+
+class _Carry(NamedTuple):
+    mean: jax.Array  # (2n,)
+    cov: jax.Array  # (2n, 2n)
+    snap: Snapshot
+    z: jax.Array  # contact (mu, sigma) at the current time, (2 nc,)
+
+
+def _linearized_terms(system, snap: Snapshot, z, criterion):
+    """Stiffness and load of the linearized system at one instant (Eq. 3.43): K + G k_e G^T, F - G f_tilde."""
+    nc = system.n_contacts
+    if nc == 0:
+        return snap.stiffness, snap.load, None
+    mu, sigma = z[:nc], z[nc:]
+    lin = system.contacts.law.linearize(mu, sigma, snap.contact_stiffness, system.contacts.clearance, criterion)
+    g = snap.direction
+    k_lin = snap.stiffness + (g * lin.k_e[None, :]) @ g.T
+    f_lin = snap.load - g @ (lin.f_0 - lin.k_e * mu)
+    return k_lin, f_lin, lin
+
+
+def _contact_state(system, snap: Snapshot, mean, cov):
+    n = system.n_dof
+    g = snap.direction
+    mu = g.T @ mean[:n]
+    sigma = _safe_sqrt(jnp.sum((g.T @ cov[:n, :n]) * g.T, axis=1))
+    return jnp.concatenate([mu, sigma])
+
+
+class _Saved(NamedTuple):
+    mean: jax.Array
+    var: jax.Array
+    z: jax.Array
+    k_e: jax.Array
+    f_0: jax.Array
+    force_mean: jax.Array
+    force_std: jax.Array
+    iterations: jax.Array
+    residual: jax.Array
+    converged: jax.Array
+
+
+def _record(system, carry: _Carry, criterion, info: _FixedPointInfo) -> _Saved:
+    nc = system.n_contacts
+    if nc:
+        mu, sigma = carry.z[:nc], carry.z[nc:]
+        k, b = carry.snap.contact_stiffness, system.contacts.clearance
+        lin = system.contacts.law.linearize(mu, sigma, k, b, criterion)
+        f_mean, f_std = system.contacts.law.force_moments(mu, sigma, k, b)
+    else:
+        lin = f_mean = f_std = None
+        empty = jnp.zeros((0,))
+    return _Saved(
+        carry.mean,
+        jnp.diagonal(carry.cov),
+        carry.z,
+        lin.k_e if nc else empty,
+        lin.f_0 if nc else empty,
+        f_mean if nc else empty,
+        f_std if nc else empty,
+        info.iterations,
+        info.residual,
+        info.converged,
+    )
+
+
+def _moment_step(system: System, carry: _Carry, t1, h, criterion, noise_scheme, rtol, max_iter):
+    n, nc = system.n_dof, system.n_contacts
+    s0, mean, cov = carry.snap, carry.mean, carry.cov
+    s1 = snapshot(system, t1)
+    k0_lin, f0_lin, _ = _linearized_terms(system, s0, carry.z, criterion)
+    mats = step_matrices(system, s0._replace(stiffness=k0_lin), s1, h, noise_scheme)
+    x_mat = jnp.concatenate([mats.from_displacement, mats.from_velocity], axis=1)  # (n, 2n)
+    mean_rhs = x_mat @ mean + f0_lin + s1.load
+    rhs_cov = x_mat @ cov @ x_mat.T + mats.noise @ mats.noise.T
+    if nc:
+        data = _StepData(
+            mats.effective_stiffness, mean_rhs, rhs_cov, s1.direction, s1.contact_stiffness,
+            system.contacts.clearance,
+        )
+        z1, info = _solve_fixed_point(system, carry.z, data, criterion, rtol, max_iter)
+        k1_lin, f1_lin, _ = _linearized_terms(system, s1, z1, criterion)
+        mean_rhs = mean_rhs - s1.load + f1_lin
+        k_eff = mats.effective_stiffness - s1.stiffness + k1_lin
+    else:
+        z1 = carry.z
+        info = _FixedPointInfo(jnp.array(0), jnp.array(0.0), jnp.array(True))
+        k_eff = mats.effective_stiffness
+    blocks = jnp.linalg.solve(k_eff, jnp.concatenate([mean_rhs[:, None], x_mat, mats.noise], axis=1))
+    u_mean, phi_u, gamma_u = blocks[:, 0], blocks[:, 1 : 2 * n + 1], blocks[:, 2 * n + 1 :]
+    eye_u = jnp.eye(n, 2 * n, dtype=mean.dtype)
+    eye_v = jnp.eye(n, 2 * n, k=n, dtype=mean.dtype)
+    phi = jnp.concatenate([phi_u, (2.0 / h) * (phi_u - eye_u) - eye_v], axis=0)
+    gamma = jnp.concatenate([gamma_u, (2.0 / h) * gamma_u + mats.velocity_noise], axis=0)
+    new_mean = jnp.concatenate([u_mean, (2.0 / h) * (u_mean - mean[:n]) - mean[n:]])
+    new_cov = phi @ cov @ phi.T + gamma @ gamma.T
+    new_cov = 0.5 * (new_cov + new_cov.T)
+    return _Carry(new_mean, new_cov, s1, z1), info
+
+
+def solve_moments(
+    system: System,
+    *,
+    t0: float = 0.0,
+    dt: float,
+    n_steps: int,
+    initial_displacement=None,
+    initial_velocity=None,
+    initial_covariance=None,
+    criterion: str = "force",
+    noise_scheme: str = "trapezoidal",
+    save_every: int = 1,
+    rtol: float = 1e-10,
+    max_iter: int = 50,
+    throw: bool = True,
+    checkpoint: bool = True,
+) -> MomentResult:
+    """Mean and standard deviation of every DOF, contact deflection and contact force by SL + stochastic
+    Newmark (thesis Eqs. 3.43-3.53, 4.51-4.63).
+
+    Args:
+        system: the system (:class:`pgtjax.System`).
+        t0, dt, n_steps: start time (s), step (s, > 0) and number of steps; ``n_steps`` must be a multiple
+            of ``save_every``. Results are saved at ``t0 + k * save_every * dt``, ``k = 0..n_steps/save_every``.
+        initial_displacement, initial_velocity: mean initial state (default 0).
+        initial_covariance: (2n, 2n) covariance of ``(u, v)`` at ``t0`` (default 0: deterministic start).
+        criterion: ``"force"`` (Eqs. 3.37-3.42), ``"energy"`` (ch. 4, corrected) or ``"energy_origin"``.
+        noise_scheme: ``"trapezoidal"`` (exact stationary covariance) or ``"newmark"`` (the documents').
+        rtol: tolerance of the per-step fixed point, relative to ``|mu| + sigma + b`` of each contact.
+        max_iter: Newton iterations allowed per step.
+        throw: raise if a step's fixed point does not converge or a NaN appears (works under ``jit``);
+            with ``False`` the flags are returned in the result (``converged``, ``iterations``, ``residual``).
+        checkpoint: rematerialize each saved block in reverse mode (memory ~ number of saves, not steps).
+    """
+    validate_system(system, t0)
+    validate_time_grid(dt, n_steps, save_every)
+    check_criterion(criterion)
+    check_noise_scheme(noise_scheme)
+    if n_steps % save_every:
+        raise ValueError(f"`n_steps` ({n_steps}) must be a multiple of `save_every` ({save_every})")
+    n = system.n_dof
+    u0 = jnp.zeros(n) if initial_displacement is None else jnp.asarray(initial_displacement, jnp.float64)
+    v0 = jnp.zeros(n) if initial_velocity is None else jnp.asarray(initial_velocity, jnp.float64)
+    p0 = jnp.zeros((2 * n, 2 * n)) if initial_covariance is None else jnp.asarray(initial_covariance, jnp.float64)
+    for name, value, shape in (
+        ("initial_displacement", u0, (n,)), ("initial_velocity", v0, (n,)), ("initial_covariance", p0, (2 * n, 2 * n))
+    ):
+        if value.shape != shape:
+            raise ValueError(f"`{name}` must have shape {shape}, got {value.shape}")
+        if not isinstance(value, jax.core.Tracer) and not bool(jnp.all(jnp.isfinite(value))):
+            raise ValueError(f"`{name}` must be finite")
+    return _solve_moments_jit(
+        system, jnp.asarray(t0, jnp.float64), jnp.asarray(dt, jnp.float64), u0, v0, p0,
+        n_steps=n_steps, save_every=save_every, criterion=criterion, noise_scheme=noise_scheme,
+        rtol=rtol, max_iter=max_iter, throw=throw, checkpoint=checkpoint,
+    )
+
+
+@eqx.filter_jit
+def _solve_moments_jit(
+    system, t0, dt, u0, v0, p0, *, n_steps, save_every, criterion, noise_scheme, rtol, max_iter, throw, checkpoint
+):
+    mean0 = jnp.concatenate([u0, v0])
+    s0 = snapshot(system, t0)
+    carry = _Carry(mean0, p0, s0, _contact_state(system, s0, mean0, p0))
+    first = _record(system, carry, criterion, _FixedPointInfo(jnp.array(0), jnp.array(0.0), jnp.array(True)))
+    n_blocks = n_steps // save_every
+
+    def block(carry, block_index):
+        def inner(c, j):
+            t1 = t0 + dt * (block_index * save_every + j + 1)
+            c, info = _moment_step(system, c, t1, dt, criterion, noise_scheme, rtol, max_iter)
+            return c, info
+
+        carry, infos = jax.lax.scan(inner, carry, jnp.arange(save_every))
+        worst = _FixedPointInfo(
+            jnp.max(infos.iterations), jnp.max(infos.residual), jnp.all(infos.converged)
+        )
+        return carry, _record(system, carry, criterion, worst)
+
+    if checkpoint:
+        block = jax.checkpoint(block)
+    _, saved = jax.lax.scan(block, carry, jnp.arange(n_blocks))
+    saved = jax.tree.map(lambda a, b: jnp.concatenate([a[None], b], axis=0), first, saved)
+    times = t0 + dt * save_every * jnp.arange(n_blocks + 1, dtype=jnp.float64)
+    if throw:
+        bad_value = ~jnp.all(jnp.isfinite(saved.mean)) | ~jnp.all(jnp.isfinite(saved.var))
+        saved = saved._replace(
+            mean=eqx.error_if(saved.mean, bad_value, "SL moment recursion produced NaN/inf: check the "
+                              "parameters (stiffness, damping, time step)."),
+        )
+        saved = saved._replace(
+            mean=eqx.error_if(saved.mean, ~jnp.all(saved.converged),
+                              "SL fixed point did not converge at some step: raise `max_iter`, reduce `dt`, "
+                              "or pass throw=False to inspect `converged`/`residual`."),
+        )
+    return MomentResult.from_saved(system, times, saved, criterion=criterion)

@@ -1,0 +1,59 @@
+"""Modal analysis: natural frequencies and mode shapes of ``(M, K(t))``.
+
+Symmetric K: generalized symmetric eigenproblem ``K phi = w^2 M phi`` through the Cholesky factor of M
+(mass-normalised modes, ``phi^T M phi = I``). Non-symmetric K (e.g. the wind-filter coupling of thesis
+Eqs. 3.30-3.31): general eigenproblem of ``M^-1 K``; frequencies are ``sqrt(Re(lambda))``.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .system import System, at_time, validate_system
+
+
+class Modes(NamedTuple):
+    frequencies_hz: jax.Array  # (n,), ascending
+    angular_frequencies: jax.Array  # rad/s
+    shapes: jax.Array  # (n, n), column j is mode j (mass-normalised when K is symmetric)
+    dof_names: tuple[str, ...]
+
+
+def modal_analysis(system: System, t: float = 0.0, *, include_contacts: bool = True) -> Modes:
+    """Natural frequencies (Hz) and mode shapes at time ``t`` (s).
+
+    With ``include_contacts`` the contacts are taken as closed linear springs of their current stiffness
+    (``K + G diag(k) G^T``), the usual choice for gear meshes in contact.
+    """
+    validate_system(system, t)
+    t = jnp.asarray(t, jnp.float64)
+    k = at_time(system.stiffness, t)
+    if include_contacts and system.n_contacts:
+        g = system.contact_direction(t)
+        k = k + (g * system.contact_stiffness(t)[None, :]) @ g.T
+    return modes_of(system.mass, k, system.dof_names)
+
+
+def modes_of(mass, stiffness, dof_names=None) -> Modes:
+    """Modes of a mass and a stiffness matrix (see :func:`modal_analysis`)."""
+    n = mass.shape[0]
+    names = tuple(dof_names) if dof_names is not None else tuple(f"q{i}" for i in range(n))
+    symmetric = isinstance(stiffness, jax.core.Tracer) or np.allclose(
+        np.asarray(stiffness), np.asarray(stiffness).T, rtol=1e-10, atol=1e-12 * float(jnp.max(jnp.abs(stiffness)))
+    )
+    if symmetric:
+        chol = jnp.linalg.cholesky(mass)
+        a = jax.scipy.linalg.solve_triangular(chol, stiffness, lower=True)
+        a = jax.scipy.linalg.solve_triangular(chol, a.T, lower=True).T
+        lam, y = jnp.linalg.eigh(0.5 * (a + a.T))
+        shapes = jax.scipy.linalg.solve_triangular(chol.T, y, lower=False)
+    else:
+        lam_c, v = np.linalg.eig(np.linalg.solve(np.asarray(mass), np.asarray(stiffness)))
+        order = np.argsort(lam_c.real)
+        lam, shapes = jnp.asarray(lam_c.real[order]), jnp.asarray(v[:, order].real)
+    omega = jnp.sqrt(jnp.maximum(lam, 0.0))
+    return Modes(omega / (2.0 * jnp.pi), omega, shapes, names)

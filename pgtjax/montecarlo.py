@@ -1,0 +1,221 @@
+"""Monte Carlo (MC) of the *nonlinear* system (thesis 3.6, 4.5), with the same stochastic Newmark
+discretization as the moment recursion: for a linear system MC statistics converge to the recursion's
+moments up to sampling error.
+
+Samples are processed in chunks (a Python loop that only bounds memory and drives the progress bar); inside a
+chunk the samples are a batch (``vmap``-style matrix products) and time is a ``lax.scan``. Nothing of size
+``n_samples x n_steps`` is kept: means and centred sums of squares are accumulated per saved time (Chan's
+parallel update between chunks), and histograms of chosen quantities are counted on the fly.
+
+Noise of sample ``s`` at step ``i`` is ``normal(fold_in(fold_in(key, s), i))``: a pure function of the key and
+the indices, so the same key gives the same statistics (to rounding) whatever the chunk size.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .newmark import (
+    SampleState,
+    check_noise_scheme,
+    initial_sample_state,
+    noise_dimension,
+    sample_step,
+    snapshot,
+)
+from .results import MonteCarloResult
+from .system import System, validate_system, validate_time_grid
+
+try:  # progress bars are a convenience, not a requirement
+    from tqdm.auto import tqdm
+except ImportError:  # pragma: no cover
+    tqdm = None
+
+
+def quantity_names(system: System) -> list[str]:
+    """Names of the per-sample quantities MC records: ``u:<dof>``, ``v:<dof>``, ``delta:<contact>``,
+    ``force:<contact>`` (the keys for ``histograms``)."""
+    names = [f"u:{d}" for d in system.dof_names] + [f"v:{d}" for d in system.dof_names]
+    names += [f"delta:{c}" for c in system.contact_names()] + [f"force:{c}" for c in system.contact_names()]
+    return names
+
+
+@eqx.filter_jit
+def _chunk(
+    system, key, sample_ids, weights, u0, v0, t0, dt, hist_edges, *, n_steps, save_every, noise_scheme,
+    hist_columns,
+):
+    n_batch = sample_ids.shape[0]
+    nd = noise_dimension(system, noise_scheme)
+    sample_keys = jax.vmap(jax.random.fold_in, in_axes=(None, 0))(key, sample_ids)
+    s0 = snapshot(system, t0)
+    state = initial_sample_state(
+        system, s0, jnp.broadcast_to(u0, (n_batch, u0.shape[0])), jnp.broadcast_to(v0, (n_batch, v0.shape[0]))
+    )
+    total = jnp.sum(weights)
+    clearance = system.contact_clearance()
+
+    def statistics(state, snap):
+        delta = state.u @ snap.direction
+        q = jnp.concatenate([state.u, state.v, delta, state.force], axis=1)
+        mean = weights @ q / total
+        m2 = weights @ (q - mean) ** 2
+        loss = weights @ (jnp.abs(delta) < clearance[None, :]).astype(q.dtype)
+        counts = []
+        for j, column in enumerate(hist_columns):
+            edges = hist_edges[j]
+            idx = jnp.searchsorted(edges, q[:, column], side="right") - 1
+            inside = (q[:, column] >= edges[0]) & (q[:, column] <= edges[-1])
+            idx = jnp.clip(idx, 0, edges.shape[0] - 2)
+            counts.append(jnp.zeros(edges.shape[0] - 1).at[idx].add(weights * inside))
+        counts = jnp.stack(counts) if counts else jnp.zeros((0, 0))
+        return mean, m2, loss, counts
+
+    def block(carry, block_index):
+        def inner(c, j):
+            state, snap0, bad = c
+            step_index = block_index * save_every + j
+            t1 = t0 + dt * (step_index + 1)
+            snap1 = snapshot(system, t1)
+            if nd:
+                draws = jax.vmap(lambda k: jax.random.normal(jax.random.fold_in(k, step_index), (nd,)))(
+                    sample_keys
+                )
+            else:
+                draws = jnp.zeros((n_batch, 0))
+            state, ok = sample_step(system, state, snap0, snap1, dt, draws, noise_scheme)
+            bad = bad + jnp.sum(weights * (~ok))
+            return (state, snap1, bad), None
+
+        carry, _ = jax.lax.scan(inner, carry, jnp.arange(save_every))
+        state, snap, _ = carry
+        return carry, statistics(state, snap)
+
+    first = statistics(state, s0)
+    carry = (state, s0, jnp.array(0.0))
+    carry, saved = jax.lax.scan(block, carry, jnp.arange(n_steps // save_every))
+    saved = jax.tree.map(lambda a, b: jnp.concatenate([a[None], b], axis=0), first, saved)
+    return saved, carry[2]
+
+
+def monte_carlo(
+    system: System,
+    *,
+    n_samples: int,
+    key,
+    t0: float = 0.0,
+    dt: float,
+    n_steps: int,
+    initial_displacement=None,
+    initial_velocity=None,
+    noise_scheme: str = "trapezoidal",
+    save_every: int = 1,
+    chunk_size: int = 5000,
+    histograms: Mapping[str, Sequence[float]] | None = None,
+    histogram_times: Sequence[float] = (),
+    progress: bool = True,
+) -> MonteCarloResult:
+    """Monte Carlo statistics of the nonlinear system driven by sampled white noise.
+
+    Args:
+        system, t0, dt, n_steps, save_every, noise_scheme, initial_*: as in :func:`pgtjax.solve_moments`
+            (deterministic initial state).
+        n_samples: number of samples (>= 2).
+        key: a ``jax.random`` key (e.g. ``jax.random.key(0)``).
+        chunk_size: samples per compiled batch (bounds memory: about ``chunk_size * 4 n`` floats).
+        histograms: ``{quantity: bin_edges}`` with quantity names from :func:`quantity_names`
+            (e.g. ``"delta:mesh"``); all edge arrays must have the same length.
+        histogram_times: times (s) at which the histograms are reported (nearest saved time).
+        progress: show a progress bar over chunks.
+    """
+    validate_system(system, t0)
+    validate_time_grid(dt, n_steps, save_every)
+    check_noise_scheme(noise_scheme)
+    if n_steps % save_every:
+        raise ValueError(f"`n_steps` ({n_steps}) must be a multiple of `save_every` ({save_every})")
+    if not isinstance(n_samples, int | np.integer) or n_samples < 2:
+        raise ValueError(f"`n_samples` must be an integer >= 2, got {n_samples!r}")
+    if not isinstance(chunk_size, int | np.integer) or chunk_size < 1:
+        raise ValueError(f"`chunk_size` must be an integer >= 1, got {chunk_size!r}")
+    n = system.n_dof
+    u0 = jnp.zeros(n) if initial_displacement is None else jnp.asarray(initial_displacement, jnp.float64)
+    v0 = jnp.zeros(n) if initial_velocity is None else jnp.asarray(initial_velocity, jnp.float64)
+    if u0.shape != (n,) or v0.shape != (n,):
+        raise ValueError(f"`initial_displacement` and `initial_velocity` must have shape ({n},)")
+    names = quantity_names(system)
+    histograms = dict(histograms or {})
+    hist_columns, edges = [], []
+    for name, e in histograms.items():
+        if name not in names:
+            raise ValueError(f"unknown histogram quantity {name!r}; choose from {names}")
+        e = np.asarray(e, dtype=np.float64)
+        if e.ndim != 1 or e.size < 2 or np.any(np.diff(e) <= 0) or not np.all(np.isfinite(e)):
+            raise ValueError(f"histogram edges for {name!r} must be a finite increasing 1-D array (>= 2 edges)")
+        hist_columns.append(names.index(name))
+        edges.append(e)
+    if len({e.size for e in edges}) > 1:
+        raise ValueError("all histogram edge arrays must have the same length")
+    hist_edges = jnp.asarray(np.stack(edges)) if edges else jnp.zeros((0, 2))
+
+    chunk = min(chunk_size, n_samples)
+    n_chunks = -(-n_samples // chunk)
+    total_n = 0.0
+    mean = m2 = loss = counts = None
+    bad = 0.0
+    bar = tqdm(total=n_samples, desc="Monte Carlo", unit="sample", disable=not progress) if tqdm else None
+    for c in range(n_chunks):
+        ids = np.arange(c * chunk, (c + 1) * chunk)
+        weights = (ids < n_samples).astype(np.float64)
+        (m_c, m2_c, loss_c, counts_c), bad_c = _chunk(
+            system, key, jnp.asarray(ids), jnp.asarray(weights), u0, v0,
+            jnp.asarray(t0, jnp.float64), jnp.asarray(dt, jnp.float64), hist_edges,
+            n_steps=n_steps, save_every=save_every, noise_scheme=noise_scheme, hist_columns=tuple(hist_columns),
+        )
+        n_c = float(weights.sum())
+        m_c, m2_c = np.asarray(m_c), np.asarray(m2_c)
+        if mean is None:
+            mean, m2, loss, counts = m_c, m2_c, np.asarray(loss_c), np.asarray(counts_c)
+        else:  # Chan et al. parallel combination of means and centred sums of squares
+            delta = m_c - mean
+            mean = mean + delta * (n_c / (total_n + n_c))
+            m2 = m2 + m2_c + delta**2 * (total_n * n_c / (total_n + n_c))
+            loss = loss + np.asarray(loss_c)
+            counts = counts + np.asarray(counts_c)
+        total_n += n_c
+        bad += float(bad_c)
+        if bar is not None:
+            bar.update(int(n_c))
+    if bar is not None:
+        bar.close()
+    if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(m2))):
+        raise FloatingPointError("Monte Carlo produced NaN/inf: check the parameters and the time step")
+
+    std = np.sqrt(np.maximum(m2, 0.0) / (total_n - 1.0))
+    nc = system.n_contacts
+    cut = np.cumsum([n, n, nc])
+    times = t0 + dt * save_every * np.arange(n_steps // save_every + 1)
+    hist_idx = np.array([int(np.argmin(np.abs(times - t))) for t in histogram_times], dtype=int)
+    split = lambda a: np.split(a, cut, axis=1)  # noqa: E731
+    mu_u, mu_v, mu_d, mu_f = split(mean)
+    sd_u, sd_v, sd_d, sd_f = split(std)
+    return MonteCarloResult(
+        times=jnp.asarray(times),
+        dof_names=system.dof_names,
+        dof_units=system.dof_units,
+        contact_names=system.contact_names(),
+        n_samples=int(total_n),
+        mean_u=jnp.asarray(mu_u), std_u=jnp.asarray(sd_u),
+        mean_v=jnp.asarray(mu_v), std_v=jnp.asarray(sd_v),
+        mean_delta=jnp.asarray(mu_d), std_delta=jnp.asarray(sd_d),
+        force_mean=jnp.asarray(mu_f), force_std=jnp.asarray(sd_f),
+        histogram_times=jnp.asarray(times[hist_idx]),
+        histogram_edges={name: jnp.asarray(e) for name, e in zip(histograms, edges)},
+        histograms={name: jnp.asarray(counts[hist_idx, j]) for j, name in enumerate(histograms)},
+        contact_loss_probability=jnp.asarray(loss / total_n),
+        unconverged=jnp.asarray(bad),
+    )

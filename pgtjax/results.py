@@ -1,0 +1,178 @@
+"""Labelled results of the solvers, and a reloadable on-disk format.
+
+Every result carries its time grid (s), the DOF names and units and the contact names, so that a
+70-DOF response stays readable. ``save_results``/``load_results`` write one ``.npz`` file whose arrays are
+the result's fields and whose ``__meta__`` entry is JSON (class, labels, units, attributes).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+
+class _Labelled(eqx.Module):
+    times: jax.Array
+    dof_names: tuple[str, ...] = eqx.field(static=True)
+    dof_units: tuple[str, ...] = eqx.field(static=True)
+    contact_names: tuple[str, ...] = eqx.field(static=True)
+
+    def dof(self, name: str) -> int:
+        """Index of a DOF by name."""
+        try:
+            return self.dof_names.index(name)
+        except ValueError:
+            raise ValueError(f"unknown DOF {name!r}; known: {', '.join(self.dof_names)}") from None
+
+    def contact(self, name: str) -> int:
+        try:
+            return self.contact_names.index(name)
+        except ValueError:
+            raise ValueError(f"unknown contact {name!r}; known: {', '.join(self.contact_names)}") from None
+
+
+class MomentResult(_Labelled):
+    """Mean and standard deviation from SL + the stochastic Newmark recursion.
+
+    Shapes: ``(n_times, n_dof)`` for DOFs (displacement ``*_u``, velocity ``*_v``), ``(n_times, n_contacts)``
+    for contacts. ``force_mean``/``force_std`` are the moments of the *nonlinear* contact force under the
+    Gaussian deflection (N); ``k_e``/``f_0`` the linearization coefficients (N/m, N). ``iterations``,
+    ``residual`` (scaled) and ``converged`` report the per-step fixed point (worst step of each saved block).
+    """
+
+    mean_u: jax.Array
+    std_u: jax.Array
+    mean_v: jax.Array
+    std_v: jax.Array
+    mean_delta: jax.Array
+    std_delta: jax.Array
+    force_mean: jax.Array
+    force_std: jax.Array
+    k_e: jax.Array
+    f_0: jax.Array
+    iterations: jax.Array
+    residual: jax.Array
+    converged: jax.Array
+    criterion: str = eqx.field(static=True)
+
+    @classmethod
+    def from_saved(cls, system, times, saved, *, criterion):
+        n, nc = system.n_dof, system.n_contacts
+        sd = jnp.sqrt(jnp.maximum(saved.var, 0.0))
+        return cls(
+            times=times,
+            dof_names=system.dof_names,
+            dof_units=system.dof_units,
+            contact_names=system.contact_names(),
+            mean_u=saved.mean[:, :n],
+            std_u=sd[:, :n],
+            mean_v=saved.mean[:, n:],
+            std_v=sd[:, n:],
+            mean_delta=saved.z[:, :nc],
+            std_delta=saved.z[:, nc:],
+            force_mean=saved.force_mean,
+            force_std=saved.force_std,
+            k_e=saved.k_e,
+            f_0=saved.f_0,
+            iterations=saved.iterations,
+            residual=saved.residual,
+            converged=saved.converged,
+            criterion=criterion,
+        )
+
+
+class MonteCarloResult(_Labelled):
+    """Sample statistics of the nonlinear system (Monte Carlo).
+
+    ``mean_*``/``std_*`` as in :class:`MomentResult` (``std`` with the 1/(N-1) normalisation, thesis
+    Eq. 4.66); ``histograms`` maps a quantity name to counts of shape ``(len(histogram_times), n_bins)`` over
+    ``histogram_edges[name]``; ``unconverged`` counts (sample, step) pairs whose contact Newton solve did not
+    reach its tolerance.
+    """
+
+    n_samples: int = eqx.field(static=True)
+    mean_u: jax.Array
+    std_u: jax.Array
+    mean_v: jax.Array
+    std_v: jax.Array
+    mean_delta: jax.Array
+    std_delta: jax.Array
+    force_mean: jax.Array
+    force_std: jax.Array
+    histogram_times: jax.Array
+    histogram_edges: dict
+    histograms: dict
+    contact_loss_probability: jax.Array
+    unconverged: jax.Array
+
+    def standard_error(self, what: str = "u"):
+        """Standard errors (mean, std) of ``mean_<what>`` and ``std_<what>`` (normal approximation)."""
+        sd = getattr(self, f"std_{what}")
+        n = self.n_samples
+        return sd / np.sqrt(n), sd / np.sqrt(2.0 * (n - 1))
+
+
+class Trajectory(_Labelled):
+    """A deterministic response: displacement ``u``, velocity ``v`` (n_times, n_dof), contact deflection
+    ``delta`` and force ``force`` (n_times, n_contacts)."""
+
+    u: jax.Array
+    v: jax.Array
+    delta: jax.Array
+    force: jax.Array
+    unconverged: jax.Array
+
+
+def _to_numpy_dict(result) -> tuple[dict, dict]:
+    arrays, meta = {}, {"class": type(result).__name__}
+    for name in result.__dataclass_fields__:
+        value = getattr(result, name)
+        if isinstance(value, dict):
+            for key, sub in value.items():
+                arrays[f"{name}/{key}"] = np.asarray(sub)
+            meta.setdefault("dicts", []).append(name)
+        elif eqx.is_array(value):
+            arrays[name] = np.asarray(value)
+        else:
+            meta[name] = list(value) if isinstance(value, tuple) else value
+    return arrays, meta
+
+
+def save_results(path, result, **attributes) -> Path:
+    """Write a result (any class of this module) to ``path`` (``.npz``) with its labels and units;
+    ``attributes`` (JSON-serialisable: parameters, units of derived quantities...) are stored too."""
+    path = Path(path)
+    arrays, meta = _to_numpy_dict(result)
+    meta["attributes"] = attributes
+    np.savez_compressed(path, __meta__=np.array(json.dumps(meta)), **arrays)
+    return path
+
+
+_CLASSES = {"MomentResult": MomentResult, "MonteCarloResult": MonteCarloResult, "Trajectory": Trajectory}
+
+
+def load_results(path):
+    """Inverse of :func:`save_results`: returns ``(result, attributes)``."""
+    with np.load(Path(path), allow_pickle=False) as data:
+        meta = json.loads(str(data["__meta__"]))
+        arrays = {k: data[k] for k in data.files if k != "__meta__"}
+    cls = _CLASSES[meta.pop("class")]
+    attributes = meta.pop("attributes", {})
+    dict_fields = meta.pop("dicts", [])
+    kwargs = {}
+    for name in dict_fields:
+        prefix = name + "/"
+        kwargs[name] = {k[len(prefix):]: jnp.asarray(v) for k, v in arrays.items() if k.startswith(prefix)}
+    for name, value in arrays.items():
+        if "/" not in name:
+            kwargs[name] = jnp.asarray(value)
+    for name, value in meta.items():
+        kwargs[name] = tuple(value) if isinstance(value, list) else value
+    for name in dict_fields:
+        kwargs.setdefault(name, {})
+    return cls(**kwargs), attributes

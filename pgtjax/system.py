@@ -1,0 +1,261 @@
+"""The generic second-order stochastic system every pgtjax model reduces to.
+
+    M q'' + C(t) q' + K(t) q + sum_j g_j(t) f_j(g_j(t)^T q) = F(t) + B w(t)
+
+with ``E[w_i(t) w_i(t + tau)] = 2 pi S0_i delta(tau)`` (the thesis's convention, Eqs. 4.19-4.20), and contacts
+``j`` acting along directions ``g_j(t)`` with a contact law ``f_j`` (backlash, Eq. 3.32) of stiffness
+``k_j(t)`` and half-clearance ``b_j``.
+
+Time dependence: ``C``, ``K``, ``F``, the contact directions and stiffnesses are each either an array or a
+callable ``t -> array``. Use an ``equinox.Module`` with a ``__call__`` (e.g. :class:`FourierSeries`) for a
+time function whose parameters you want to differentiate or ``vmap``; a plain Python function works too but its
+closed-over arrays are constants for JAX. ``M`` is constant: every model of the documents has constant mass,
+and a time-varying mass would need the momentum form of the integrator.
+
+Units are SI (m, kg, N, s) unless a model says otherwise; a DOF may be an angle times a radius (m).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .contact import Backlash, ContactLaw
+
+ArrayOrFunction = jax.Array | Callable
+
+
+def at_time(value: ArrayOrFunction, t) -> jax.Array:
+    """Evaluate a field that is either an array or a function of time ``t`` (s)."""
+    return value(t) if callable(value) else value
+
+
+class FourierSeries(eqx.Module):
+    """``k(t) = k0 + sum_j [a_j sin(j w t + phase) + c_j cos(j w t + phase)]``, thesis Eq. 4.11 / Eq. 3.1.
+
+    ``mean``, ``sin_coefficients`` and ``cos_coefficients`` broadcast together: a leading axis of the
+    coefficients (shape ``(harmonics, ...)``) is the harmonic order. ``frequency`` is the fundamental (rad/s),
+    ``phase`` a phase shift (rad) per output entry (mesh phasing).
+    """
+
+    mean: jax.Array
+    sin_coefficients: jax.Array
+    cos_coefficients: jax.Array
+    frequency: jax.Array
+    phase: jax.Array
+
+    def __init__(self, mean, sin_coefficients=(), cos_coefficients=(), frequency=0.0, phase=0.0):
+        self.mean = jnp.asarray(mean, dtype=jnp.float64)
+        sin_c = jnp.asarray(sin_coefficients, dtype=jnp.float64)
+        cos_c = jnp.asarray(cos_coefficients, dtype=jnp.float64)
+        n_harm = max(sin_c.shape[0] if sin_c.ndim else 0, cos_c.shape[0] if cos_c.ndim else 0)
+        shape = (n_harm,) + self.mean.shape
+        self.sin_coefficients = jnp.broadcast_to(sin_c if sin_c.size else 0.0, shape).astype(jnp.float64)
+        self.cos_coefficients = jnp.broadcast_to(cos_c if cos_c.size else 0.0, shape).astype(jnp.float64)
+        self.frequency = jnp.asarray(frequency, dtype=jnp.float64)
+        self.phase = jnp.broadcast_to(jnp.asarray(phase, dtype=jnp.float64), self.mean.shape)
+
+    def __call__(self, t):
+        order = jnp.arange(1, self.sin_coefficients.shape[0] + 1, dtype=jnp.float64)
+        order = order.reshape((-1,) + (1,) * self.mean.ndim)
+        angle = order * (self.frequency * t + self.phase)
+        return self.mean + jnp.sum(
+            self.sin_coefficients * jnp.sin(angle) + self.cos_coefficients * jnp.cos(angle), axis=0
+        )
+
+
+class Contacts(eqx.Module):
+    """A group of contacts sharing one contact law.
+
+    ``direction``: (n_dof, n_contacts) array or ``t -> array``; column j is g_j (deflection = g_j^T q).
+    ``stiffness``: (n_contacts,) array or ``t -> array`` (N/m).
+    ``clearance``: (n_contacts,) half-clearances b >= 0 (m).
+    """
+
+    direction: ArrayOrFunction
+    stiffness: ArrayOrFunction
+    clearance: jax.Array
+    names: tuple[str, ...] = eqx.field(static=True)
+    law: ContactLaw = Backlash()
+
+    def __init__(self, direction, stiffness, clearance, names: Sequence[str] | None = None, law=None):
+        self.direction = direction if callable(direction) else jnp.asarray(direction, dtype=jnp.float64)
+        self.stiffness = stiffness if callable(stiffness) else jnp.asarray(stiffness, dtype=jnp.float64)
+        self.clearance = jnp.atleast_1d(jnp.asarray(clearance, dtype=jnp.float64))
+        n = self.clearance.shape[0]
+        self.names = tuple(names) if names is not None else tuple(f"contact{j}" for j in range(n))
+        self.law = Backlash() if law is None else law
+
+    @property
+    def count(self) -> int:
+        return self.clearance.shape[0]
+
+
+class System(eqx.Module):
+    """``M q'' + C q' + K q + G f(G^T q) = F + B w``; see the module docstring.
+
+    ``noise_input`` (B) is (n_dof, n_noise); ``spectral_density`` (S0) is a scalar or (n_noise,).
+    ``dof_names``/``dof_units`` label the results.
+    """
+
+    mass: jax.Array
+    damping: ArrayOrFunction
+    stiffness: ArrayOrFunction
+    load: ArrayOrFunction
+    noise_input: jax.Array
+    spectral_density: jax.Array
+    contacts: Contacts | None
+    dof_names: tuple[str, ...] = eqx.field(static=True)
+    dof_units: tuple[str, ...] = eqx.field(static=True)
+
+    def __init__(
+        self,
+        mass,
+        stiffness,
+        damping=None,
+        load=None,
+        noise_input=None,
+        spectral_density=1.0,
+        contacts: Contacts | None = None,
+        dof_names: Sequence[str] | None = None,
+        dof_units: Sequence[str] | None = None,
+    ):
+        self.mass = jnp.atleast_2d(jnp.asarray(mass, dtype=jnp.float64))
+        n = self.mass.shape[0]
+        as_field = lambda x: x if callable(x) else jnp.asarray(x, dtype=jnp.float64)  # noqa: E731
+        self.stiffness = as_field(stiffness)
+        self.damping = as_field(jnp.zeros((n, n)) if damping is None else damping)
+        self.load = as_field(jnp.zeros(n) if load is None else load)
+        self.noise_input = jnp.asarray(jnp.zeros((n, 0)) if noise_input is None else noise_input, jnp.float64)
+        if self.noise_input.ndim == 1:
+            self.noise_input = self.noise_input[:, None]
+        m = self.noise_input.shape[1]
+        self.spectral_density = jnp.broadcast_to(jnp.asarray(spectral_density, dtype=jnp.float64), (m,))
+        self.contacts = contacts
+        self.dof_names = tuple(dof_names) if dof_names is not None else tuple(f"q{i}" for i in range(n))
+        self.dof_units = tuple(dof_units) if dof_units is not None else ("m",) * n
+
+    @property
+    def n_dof(self) -> int:
+        return self.mass.shape[0]
+
+    @property
+    def n_contacts(self) -> int:
+        return 0 if self.contacts is None else self.contacts.count
+
+    @property
+    def n_noise(self) -> int:
+        return self.noise_input.shape[1]
+
+    def contact_direction(self, t) -> jax.Array:
+        if self.contacts is None:
+            return jnp.zeros((self.n_dof, 0))
+        return at_time(self.contacts.direction, t)
+
+    def contact_stiffness(self, t) -> jax.Array:
+        if self.contacts is None:
+            return jnp.zeros((0,))
+        return jnp.broadcast_to(at_time(self.contacts.stiffness, t), (self.n_contacts,))
+
+    def contact_clearance(self) -> jax.Array:
+        return jnp.zeros((0,)) if self.contacts is None else self.contacts.clearance
+
+    def scaled_noise_input(self) -> jax.Array:
+        """B diag(sqrt(2 pi S0)): the matrix multiplying unit Wiener increments (N / sqrt(s))."""
+        return self.noise_input * jnp.sqrt(2.0 * jnp.pi * self.spectral_density)[None, :]
+
+    def contact_names(self) -> tuple[str, ...]:
+        return () if self.contacts is None else self.contacts.names
+
+
+# ----------------------------------------------------------------------------------------------- checks
+
+
+def _is_concrete(x) -> bool:
+    return eqx.is_array(x) and not isinstance(x, jax.core.Tracer)
+
+
+def _check_finite(name: str, value) -> None:
+    if _is_concrete(value) and not bool(jnp.all(jnp.isfinite(value))):
+        raise ValueError(f"`{name}` must contain only finite numbers (no NaN or inf)")
+
+
+def _check_shape(name: str, value, shape: tuple[int, ...]) -> None:
+    if tuple(jnp.shape(value)) != shape:
+        raise ValueError(f"`{name}` must have shape {shape}, got {tuple(jnp.shape(value))}")
+
+
+def validate_system(system: System, t0: float = 0.0) -> None:
+    """Raise ``ValueError`` for inconsistent shapes, non-finite values or a mass matrix that is not
+    symmetric positive definite. Value checks are skipped for traced arrays (inside ``jit``/``grad``)."""
+    if not isinstance(system, System):
+        raise ValueError(f"`system` must be a pgtjax.System, got {type(system).__name__}")
+    n = system.n_dof
+    M = system.mass
+    _check_shape("mass", M, (n, n))
+    _check_finite("mass", M)
+    if _is_concrete(M):
+        Mn = np.asarray(M)
+        diag = np.diag(Mn)
+        if np.any(diag <= 0.0):
+            j = int(np.argmin(diag))
+            raise ValueError(
+                f"`mass` must have positive diagonal entries (masses/inertias > 0); "
+                f"DOF {system.dof_names[j]!r} has {diag[j]!r}"
+            )
+        scale = np.max(np.abs(Mn))
+        if not np.allclose(Mn, Mn.T, rtol=1e-10, atol=1e-12 * scale):
+            raise ValueError("`mass` must be symmetric")
+        smallest = float(np.linalg.eigvalsh(0.5 * (Mn + Mn.T)).min())
+        if smallest <= 0.0:
+            raise ValueError(
+                f"`mass` must be positive definite (all eigenvalues > 0), smallest eigenvalue is {smallest!r}"
+            )
+    for name, field, shape in (
+        ("stiffness", system.stiffness, (n, n)),
+        ("damping", system.damping, (n, n)),
+        ("load", system.load, (n,)),
+    ):
+        value = at_time(field, jnp.asarray(t0, dtype=jnp.float64))
+        _check_shape(name, value, shape)
+        _check_finite(name, value)
+    if system.noise_input.shape[0] != n:
+        raise ValueError(f"`noise_input` must have {n} rows (one per DOF), got shape {system.noise_input.shape}")
+    _check_finite("noise_input", system.noise_input)
+    _check_finite("spectral_density", system.spectral_density)
+    if _is_concrete(system.spectral_density) and bool(jnp.any(system.spectral_density < 0.0)):
+        raise ValueError("`spectral_density` must be >= 0")
+    if len(system.dof_names) != n or len(system.dof_units) != n:
+        raise ValueError(f"`dof_names` and `dof_units` must have {n} entries")
+    if system.contacts is not None:
+        c = system.contacts
+        nc = c.count
+        _check_finite("clearance", c.clearance)
+        if _is_concrete(c.clearance) and bool(jnp.any(c.clearance < 0.0)):
+            raise ValueError(f"`clearance` (half-backlash b) must be >= 0 m, got {np.asarray(c.clearance)}")
+        g = system.contact_direction(jnp.asarray(t0, dtype=jnp.float64))
+        _check_shape("contact direction", g, (n, nc))
+        _check_finite("contact direction", g)
+        k = at_time(c.stiffness, jnp.asarray(t0, dtype=jnp.float64))
+        if jnp.shape(k) not in ((), (nc,)):
+            raise ValueError(f"`contact stiffness` must be a scalar or have shape ({nc},), got {jnp.shape(k)}")
+        _check_finite("contact stiffness", k)
+        if _is_concrete(k) and bool(jnp.any(k < 0.0)):
+            raise ValueError("`contact stiffness` must be >= 0 N/m")
+        if len(c.names) != nc:
+            raise ValueError(f"contact `names` must have {nc} entries, got {len(c.names)}")
+
+
+def validate_time_grid(dt, n_steps, save_every: int = 1) -> None:
+    """``dt`` > 0 s and finite, ``n_steps`` >= 1, ``save_every`` >= 1 (integers)."""
+    if not isinstance(dt, jax.core.Tracer):
+        if not np.isfinite(float(dt)) or float(dt) <= 0.0:
+            raise ValueError(f"`dt` must be a finite time step > 0 s, got {dt!r}")
+    if not isinstance(n_steps, int | np.integer) or n_steps < 1:
+        raise ValueError(f"`n_steps` must be an integer >= 1, got {n_steps!r}")
+    if not isinstance(save_every, int | np.integer) or save_every < 1:
+        raise ValueError(f"`save_every` must be an integer >= 1, got {save_every!r}")
