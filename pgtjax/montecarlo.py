@@ -64,7 +64,7 @@ def _chunk(
         delta = state.u @ snap.direction
         q = jnp.concatenate([state.u, state.v, delta, state.force], axis=1)
         mean = weights @ q / total
-        m2 = weights @ (q - mean) ** 2
+        m2 = weights @ (q - mean[None, :]) ** 2
         loss = weights @ (jnp.abs(delta) < clearance[None, :]).astype(q.dtype)
         counts = []
         for j, column in enumerate(hist_columns):

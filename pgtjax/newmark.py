@@ -3,17 +3,19 @@
 Derivation (thesis Eqs. 3.45-3.51 / 4.52-4.60, rewritten in effective-stiffness form). Over a step
 ``h = t1 - t0`` the scheme is the trapezoidal rule on the state ``(u, v)``:
 
-    u1 - u0 = h/2 (v0 + v1) + M^-1 B_s (h^(3/2)/sqrt(12)) P                        (kinematics)
-    M (v1 - v0) = h/2 [F0 + F1 - C0 v0 - C1 v1 - K0 u0 - K1 u1 - G0 f0 - G1 f1] + sqrt(h) B_s N   (momentum)
+    u1 - u0 = h/2 (v0 + v1) + M^-1 B_s (h^(3/2)/sqrt(12)) P                            (kinematics)
+    M (v1 - v0) + C_m (u1 - u0) = h/2 [F0 + F1 - K0 u0 - K1 u1 - G0 f0 - G1 f1] + sqrt(h) B_s N  (momentum)
 
-with ``B_s = B diag(sqrt(2 pi S0))`` and ``N``, ``P`` independent standard normal vectors. ``N`` carries the
+(thesis Eq. 3.47's two block rows; ``C_m = (C0 + C1)/2`` for a time-varying damping), with
+``B_s = B diag(sqrt(2 pi S0))`` and ``N``, ``P`` independent standard normal vectors. ``N`` carries the
 Wiener increment over the step; ``P`` the Brownian-bridge part of its time integral, i.e. the
 ``B dt sqrt(dt)/sqrt(12)`` term of Eq. 3.49/4.58 (ERRATA: the factor is ``sqrt(dt) B``, not ``sqrt(dt B)``).
-Eliminating ``v1`` gives the classic effective-stiffness form
+The damping term is integrated exactly (``int C u' dt = C (u1 - u0)``), as in Eq. 3.47. Eliminating ``v1``
+gives the classic effective-stiffness form
 
     K_eff u1 + G1 f(G1^T u1) = E u0 + D v0 + F0 + F1 - G0 f0 + B_N N + B_P P
-    K_eff = K1 + (2/h) C1 + (4/h^2) M,   E = (4/h^2) M + (2/h) C1 - K0,   D = (4/h) M + C1 - C0
-    B_N = (2/sqrt(h)) B_s,   B_P = (4/sqrt(12 h)) B_s + (2 sqrt(h)/sqrt(12)) C1 M^-1 B_s
+    K_eff = K1 + (2/h) C_m + (4/h^2) M,   E = (4/h^2) M + (2/h) C_m - K0,   D = (4/h) M
+    B_N = (2/sqrt(h)) B_s,   B_P = (4/sqrt(12 h)) B_s
     v1 = (2/h)(u1 - u0) - v0 - (2 sqrt(h)/sqrt(12)) M^-1 B_s P
 
 Noise schemes (``noise_scheme``):
@@ -80,16 +82,17 @@ class StepMatrices(NamedTuple):
 
 def step_matrices(system: System, s0: Snapshot, s1: Snapshot, h, noise_scheme: str) -> StepMatrices:
     M = system.mass
-    k_eff = s1.stiffness + (2.0 / h) * s1.damping + (4.0 / h**2) * M
-    from_u = (4.0 / h**2) * M + (2.0 / h) * s1.damping - s0.stiffness
-    from_v = (4.0 / h) * M + s1.damping - s0.damping
+    c_mid = 0.5 * (s0.damping + s1.damping)
+    k_eff = s1.stiffness + (2.0 / h) * c_mid + (4.0 / h**2) * M
+    from_u = (4.0 / h**2) * M + (2.0 / h) * c_mid - s0.stiffness
+    from_v = (4.0 / h) * M
     b_s = system.scaled_noise_input()
     b_n = (2.0 / jnp.sqrt(h)) * b_s
     if noise_scheme == "newmark":
-        minv_bs = jnp.linalg.solve(M, b_s)
         root12 = jnp.sqrt(12.0)
-        b_p = (4.0 / (root12 * jnp.sqrt(h))) * b_s + (2.0 * jnp.sqrt(h) / root12) * (s1.damping @ minv_bs)
+        b_p = (4.0 / (root12 * jnp.sqrt(h))) * b_s
         noise = jnp.concatenate([b_n, b_p], axis=1)
+        minv_bs = jnp.linalg.solve(M, b_s)
         v_noise = jnp.concatenate([jnp.zeros_like(b_n), -(2.0 * jnp.sqrt(h) / root12) * minv_bs], axis=1)
     else:
         noise, v_noise = b_n, jnp.zeros_like(b_n)
@@ -173,7 +176,7 @@ def sample_step(system: System, state: SampleState, s0: Snapshot, s1: Snapshot, 
         delta, ok = jax.vmap(lambda dl: solve_contacts(dl, coupling, k1, b, system.contacts.law))(
             u_lin @ s1.direction
         )
-        force = system.contacts.law.force(delta, k1, b)
+        force = system.contacts.law.force(delta, k1[None, :], b[None, :])
         u1 = u_lin - force @ kinv_g1.T
     else:
         force = state.force
@@ -187,7 +190,8 @@ def sample_step(system: System, state: SampleState, s0: Snapshot, s1: Snapshot, 
 def initial_sample_state(system: System, s0: Snapshot, u0, v0) -> SampleState:
     """Batch state at t0 from (batch, n) displacements and velocities."""
     if system.n_contacts:
-        force = system.contacts.law.force(u0 @ s0.direction, s0.contact_stiffness, system.contacts.clearance)
+        k, b = s0.contact_stiffness[None, :], system.contacts.clearance[None, :]
+        force = system.contacts.law.force(u0 @ s0.direction, k, b)
     else:
         force = jnp.zeros((u0.shape[0], 0))
     return SampleState(u0, v0, force)

@@ -62,7 +62,7 @@ class FourierSeries(eqx.Module):
     def __call__(self, t):
         order = jnp.arange(1, self.sin_coefficients.shape[0] + 1, dtype=jnp.float64)
         order = order.reshape((-1,) + (1,) * self.mean.ndim)
-        angle = order * (self.frequency * t + self.phase)
+        angle = order * (self.frequency * t + self.phase)[None, ...]
         return self.mean + jnp.sum(
             self.sin_coefficients * jnp.sin(angle) + self.cos_coefficients * jnp.cos(angle), axis=0
         )

@@ -54,6 +54,7 @@ from __future__ import annotations
 
 import math
 import tomllib
+from functools import partial
 from pathlib import Path
 from typing import NamedTuple
 
@@ -139,7 +140,7 @@ HARSHA_FORCE_EXP_EQ11 = 0.925
 HARSHA_LENGTH_EXP_EQ11 = 0.85
 
 _N_PAIRS = 3  # static upper bound on pairs in contact (contact ratio < 3 is validated)
-_NEWTON_ITERS = 30
+_NEWTON_ITERS = 20
 
 _MODULUS_KINDS = ("plane_strain", "plane_stress", "paper_eq4")
 
@@ -392,6 +393,7 @@ class ContactPath(NamedTuple):
     contact_ratio: Array  # (s_end - s_start) / p_b [-]
 
 
+@jax.jit
 def contact_path(mesh: SpurMesh) -> ContactPath:
     """Active path of contact and contact ratio from the tip circles (standard centre distance).
 
@@ -407,6 +409,7 @@ def contact_path(mesh: SpurMesh) -> ContactPath:
     return ContactPath(s_start, s_end, line, pb, (s_end - s_start) / pb)
 
 
+@jax.jit
 def contact_radii(mesh: SpurMesh, s) -> tuple[Array, Array]:
     """Radii [m] of the contact point on pinion and gear at LOA position s [m] (from T1)."""
     p, g = _gear(mesh, "pinion"), _gear(mesh, "gear")
@@ -430,10 +433,12 @@ def cornell_beam_compliance(xi, half_thickness, xi_load, beta, face_width, e_bea
 
         cos^2(beta) e_i [ (d_i^2 - d_i e_i + e_i^2/3)/(E' I_i) + 1/(s_h G A_i) + tan^2(beta)/(E' A_i) ]
 
-    with the segment's 1/I and 1/A the mean of the values at its ends (Eqs. 5-6).
+    with the segment's 1/I and 1/A the mean of the values at its ends (Eqs. 5-6). The per-segment
+    moment integral is exact for any sign of d_i, so the load point may lie outside the beam.
 
     Args:
-        xi: (n+1,) node positions along the tooth axis from the root [m], increasing, xi[-1] = xi_load.
+        xi: (n+1,) node positions along the tooth axis from the root [m], increasing, up to the section
+            through the contact point.
         half_thickness: (n+1,) half tooth thickness at the nodes [m].
         xi_load: load point on the axis [m]. beta: load angle [rad]. face_width [m].
         e_beam: beam modulus E' [Pa]. shear_modulus: G [Pa]. shear_factor: s_h [-].
@@ -457,23 +462,20 @@ def _tooth_load_geometry(gear: _Gear, r):
     d_load = gear.r_base / jnp.cos(beta)  # distance gear centre -> load line x tooth axis
     psi_root = tooth_half_angle(gear, gear.r_root)
     x_root = gear.r_root * jnp.cos(psi_root)
-    xi_load = jnp.maximum(gear.sign * (d_load - x_root), 0.0)
+    xi_load = gear.sign * (d_load - x_root)  # may be < 0 for ring teeth loaded near the root
     return beta, d_load, psi_root, x_root, xi_load
 
 
 def _tooth_bending_compliance(mesh: SpurMesh, gear: _Gear, r) -> Array:
-    beta, d_load, _, x_root, xi_load = _tooth_load_geometry(gear, r)
-
-    # radius on the profile whose axial coordinate r cos(psi(r)) equals d_load (fixed point, contraction)
-    def body(_, rr):
-        return d_load / jnp.cos(tooth_half_angle(gear, rr))
-
-    r_load = jax.lax.fori_loop(0, 8, body, d_load)
+    beta, _, _, x_root, xi_load = _tooth_load_geometry(gear, r)
+    # The loaded part of the tooth runs from the root circle to the section through the contact point.
+    # Eq. 3 stops its segments at the load point on the axis; integrating the same strain energy up to
+    # the contact section differs little for external teeth, but is required for ring teeth, whose load
+    # line can cross the axis below the root circle (moment arm changing sign along the tooth).
     t = jnp.linspace(0.0, 1.0, mesh.n_segments + 1)
-    r_nodes = gear.r_root + (r_load - gear.r_root) * t
+    r_nodes = gear.r_root + (r - gear.r_root) * t
     psi = tooth_half_angle(gear, r_nodes)
     xi = gear.sign * (r_nodes * jnp.cos(psi) - x_root)
-    xi = xi.at[-1].set(xi_load)
     y = r_nodes * jnp.sin(psi)
     e_beam = effective_modulus(mesh.youngs_modulus, mesh.poisson_ratio, mesh.modulus_kind)
     shear_mod = mesh.youngs_modulus / (2.0 * (1.0 + mesh.poisson_ratio))
@@ -497,6 +499,7 @@ def _tooth_fillet_compliance(mesh: SpurMesh, gear: _Gear, r) -> Array:
     return jnp.cos(beta) ** 2 / (mesh.face_width * mesh.youngs_modulus) * bracket
 
 
+@partial(jax.jit, static_argnames=("which",))
 def bending_compliance(mesh: SpurMesh, s, which: str) -> Array:
     """Bending + shear + axial compliance [m/N] of one tooth (Eqs. 3-6) at LOA position s [m].
 
@@ -513,6 +516,7 @@ def bending_stiffness(mesh: SpurMesh, s, which: str) -> Array:
     return 1.0 / bending_compliance(mesh, s, which)
 
 
+@partial(jax.jit, static_argnames=("which",))
 def fillet_compliance(mesh: SpurMesh, s, which: str) -> Array:
     """Fillet-foundation compliance [m/N] of one tooth (Eq. 8) at LOA position s [m].
 
@@ -581,6 +585,7 @@ def hertz_deflection_eq11(force, length) -> Array:
     return jnp.where(pos, d_mm * 1e-3, 0.0)
 
 
+@jax.jit
 def equivalent_radius(mesh: SpurMesh, s) -> Array:
     """Relative radius of curvature [m] of the flanks at LOA position s: 1/R = 1/rho1 + sign/rho2.
 
@@ -594,6 +599,7 @@ def equivalent_radius(mesh: SpurMesh, s) -> Array:
     return 1.0 / (1.0 / rho1 + g.sign / rho2)
 
 
+@jax.jit
 def hertz_half_width(mesh: SpurMesh, s, force) -> Array:
     """Classical Hertz half contact width b [m] = sqrt(4 F R / (pi W E*)), E* = E/(2(1-nu^2))."""
     e_star = mesh.youngs_modulus / (2.0 * (1.0 - mesh.poisson_ratio**2))
@@ -610,6 +616,7 @@ def series_stiffness(*stiffnesses) -> Array:
     return 1.0 / sum(1.0 / k for k in stiffnesses)
 
 
+@jax.jit
 def pair_linear_compliance(mesh: SpurMesh, s) -> Array:
     """Load-independent part of a pair's compliance [m/N]: 1/K_b + 1/K_f of pinion and gear (Eq. 1)."""
     r1, r2 = contact_radii(mesh, s)
@@ -635,6 +642,7 @@ class PairStiffness(NamedTuple):
     hertz_deflection: Array  # [m]
 
 
+@jax.jit
 def pair_stiffness(mesh: SpurMesh, s, load) -> PairStiffness:
     """All stiffness components of one pair at LOA position s [m] carrying normal load F [N] (Eqs. 1-13)."""
     r1, r2 = contact_radii(mesh, s)
@@ -651,21 +659,36 @@ def pair_stiffness(mesh: SpurMesh, s, load) -> PairStiffness:
     )
 
 
+def _newton_root(fun, slope, x0) -> Array:
+    """Scalar root of an increasing convex ``fun`` by Newton from x0 > root (monotone convergence).
+
+    ``slope`` is the derivative of ``fun`` (closed form, so the iteration itself is not differentiated).
+    Differentiated implicitly (``lax.custom_root``): gradients do not unroll the iterations.
+    """
+
+    def solve(f, x_init):
+        return jax.lax.fori_loop(0, _NEWTON_ITERS, lambda _, x: x - f(x) / slope(x), x_init)
+
+    def tangent_solve(g, y):
+        return y / g(jnp.ones_like(y))
+
+    return jax.lax.custom_root(fun, x0, solve, tangent_solve)
+
+
 def _pair_hertz_deflection(compliance, coef, delta) -> Array:
-    """Solve delta_h + c F_h(delta_h) = delta for delta_h >= 0 (Newton from the right; convex, monotone)."""
+    """Solve delta_h + c F_h(delta_h) = delta for delta_h >= 0 (convex increasing; Newton from delta_h = delta)."""
     pos = delta > 0.0
     dp = jnp.where(pos, delta, 1.0)
     p = HARSHA_DEFLECTION_EXP
-
-    def body(_, x):
-        g = x + compliance * coef * x**p - dp
-        dg = 1.0 + compliance * coef * p * x ** (p - 1.0)
-        return x - g / dg
-
-    x = jax.lax.fori_loop(0, _NEWTON_ITERS, body, dp)
+    x = _newton_root(
+        lambda x: x + compliance * coef * x**p - dp,
+        lambda x: 1.0 + compliance * coef * p * x ** (p - 1.0),
+        dp,
+    )
     return jnp.where(pos, x, 0.0)
 
 
+@jax.jit
 def pair_force(mesh: SpurMesh, s, delta) -> Array:
     """Normal force [N] carried by one pair at LOA position s for mesh deflection delta [m] (0 if delta <= 0)."""
     coef = HARSHA_FORCE_COEF_SI * mesh.face_width**HARSHA_LENGTH_EXP
@@ -690,11 +713,13 @@ def pair_positions(mesh: SpurMesh, phase, pinion_drives: bool = True) -> tuple[A
     return jnp.minimum(s, path.s_end), in_contact
 
 
+@partial(jax.jit, static_argnames=("pinion_drives",))
 def pairs_in_contact(mesh: SpurMesh, phase, pinion_drives: bool = True) -> Array:
     """Number of tooth pairs in contact at mesh phase lam (int)."""
     return jnp.sum(pair_positions(mesh, phase, pinion_drives)[1].astype(jnp.int32))
 
 
+@partial(jax.jit, static_argnames=("pinion_drives",))
 def mesh_force(mesh: SpurMesh, phase, delta, pinion_drives: bool = True) -> Array:
     """Total mesh force [N] at mesh phase lam and mesh deflection delta [m] along the line of action."""
     s, on = pair_positions(mesh, phase, pinion_drives)
@@ -717,6 +742,7 @@ class MeshState(NamedTuple):
     pair_hertz_stiffness: Array  # (3,) tangent K_h per pair [N/m]
 
 
+@partial(jax.jit, static_argnames=("pinion_drives",))
 def mesh_state(mesh: SpurMesh, phase, load, pinion_drives: bool = True) -> MeshState:
     """Load sharing and mesh stiffness at mesh phase lam under total normal load F [N] > 0.
 
@@ -738,12 +764,11 @@ def mesh_state(mesh: SpurMesh, phase, load, pinion_drives: bool = True) -> MeshS
         return dh, f, k, kh
 
     delta0 = comp[0] * load + hertz_deflection(load, mesh.face_width)
-
-    def body(_, delta):
-        _, f, k, _ = pair_response(delta)
-        return delta - (jnp.sum(f) - load) / jnp.sum(k)
-
-    delta = jax.lax.fori_loop(0, _NEWTON_ITERS, body, delta0)
+    delta = _newton_root(
+        lambda d: jnp.sum(pair_response(d)[1]) - load,
+        lambda d: jnp.sum(jax.lax.stop_gradient(pair_response(d)[2])),
+        delta0,
+    )
     dh, f, k, kh = pair_response(delta)
     kh_on = jnp.where(on, kh, 0.0)
     return MeshState(
@@ -765,6 +790,7 @@ def mesh_stiffness(mesh: SpurMesh, phase, load, pinion_drives: bool = True) -> A
     return mesh_state(mesh, phase, load, pinion_drives).stiffness
 
 
+@partial(jax.jit, static_argnames=("n_points", "pinion_drives"))
 def mesh_cycle(mesh: SpurMesh, load, n_points: int = 256, pinion_drives: bool = True):
     """(phases, MeshState) over one mesh period, phases = arange(n)/n (periodic grid)."""
     phases = jnp.arange(n_points, dtype=jnp.float64) / n_points
@@ -797,6 +823,7 @@ def planet_mesh_phases(z_sun: int, z_ring: int, planet_angles) -> tuple[Array, A
     return jnp.mod(z_sun * psi / (2.0 * jnp.pi), 1.0), jnp.mod(-z_ring * psi / (2.0 * jnp.pi), 1.0)
 
 
+@jax.jit
 def sun_ring_phase(sun_mesh: SpurMesh, ring_mesh: SpurMesh) -> Array:
     """Phase gamma_rs of a planet's ring mesh relative to its sun mesh, fraction in [0, 1).
 

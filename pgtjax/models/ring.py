@@ -37,6 +37,7 @@ SI units: m, kg, N, rad, Pa, Hz.
 from __future__ import annotations
 
 import math
+from functools import partial
 
 import equinox as eqx
 import jax
@@ -147,7 +148,8 @@ class RingParams(eqx.Module):
             raise ValueError(f"`support_nodes` must be a tuple of integers, got {support_nodes!r}") from None
         if any(k < 0 or k >= n_elements for k in nodes) or len(set(nodes)) != len(nodes):
             raise ValueError(
-                f"`support_nodes` must be distinct node indices in [0, {n_elements - 1}], got {support_nodes!r}"
+                f"`support_nodes` must be distinct node indices in [0, {n_elements - 1}], "
+                f"got {support_nodes!r}"
             )
         _check("radius", radius, 0.0, "m")
         _check("thickness", thickness, 0.0, "m")
@@ -170,7 +172,7 @@ class RingParams(eqx.Module):
             ("k_support_tangential", k_support_tangential),
             ("k_support_torsional", k_support_torsional),
         ):
-            shape = jnp.shape(val)
+            shape = np.shape(val)
             if shape not in ((), (len(nodes),)):
                 raise ValueError(
                     f"`{name}` must be a scalar or have shape ({len(nodes)},) (one per support), got {shape}"
@@ -234,6 +236,7 @@ def _element_dofs(n_elements: int) -> np.ndarray:
     return np.concatenate([n1, n2], axis=1)
 
 
+@partial(jax.jit, static_argnums=1)
 def _assemble(block, n_elements: int):
     idx = _element_dofs(n_elements)
     n = 3 * n_elements
@@ -243,6 +246,7 @@ def _assemble(block, n_elements: int):
     return jnp.zeros((n, n), dtype=block.dtype).at[rows, cols].add(blocks)
 
 
+@jax.jit
 def support_stiffness_matrix(p: RingParams):
     """Grounded bolt springs ``K_S`` (3L x 3L) of Eq. 6.24: diag(k_r, k_tau, k_theta) at each support node."""
     n = p.n_dof
@@ -263,6 +267,7 @@ def support_stiffness_matrix(p: RingParams):
     return jnp.diag(ks)
 
 
+@jax.jit
 def ring_shape_at(p: RingParams, theta):
     """Element DOFs and shape-function matrix at global angle ``theta`` [rad] (any real, wraps 2 pi).
 
@@ -281,6 +286,7 @@ def ring_shape_at(p: RingParams, theta):
     return dofs, n
 
 
+@jax.jit
 def ring_interpolation(p: RingParams, theta):
     """Dense rows ``a(theta)`` (3 x 3L) of the global shape-function matrix (Eqs. 6.4, 6.15).
 
@@ -291,6 +297,7 @@ def ring_interpolation(p: RingParams, theta):
     return jnp.zeros((3, p.n_dof), dtype=n.dtype).at[:, dofs].add(n)
 
 
+@jax.jit
 def ring_load_vector(p: RingParams, theta, f_radial, f_tangential):
     """Global nodal force vector (3L,) [N, N, N m] of a point load at angle ``theta`` [rad].
 
@@ -305,12 +312,14 @@ def ring_load_vector(p: RingParams, theta, f_radial, f_tangential):
     return jnp.zeros((p.n_dof,), dtype=loc.dtype).at[dofs].add(loc)
 
 
+@jax.jit
 def ring_displacement_at(p: RingParams, theta, u):
     """(u_r, u_tau, u_theta) [m, m, rad] of the rim at angle ``theta`` from nodal DOFs ``u`` (3L,)."""
     dofs, n = ring_shape_at(p, theta)
     return n @ u[dofs]
 
 
+@jax.jit
 def tooth_mass_matrix(p: RingParams):
     """Model II tooth mass matrix ``M_T`` (3L x 3L) (Eqs. 5.16-5.18), consistent point masses.
 
@@ -333,7 +342,8 @@ def ring_matrices(p: RingParams):
     """Global mass and stiffness ``(M, K)`` (3L x 3L, float64) of the supported ring (Eqs. 3.24, 5.16, 6.23).
 
     ``M`` = assembled consistent rim mass + tooth masses (Model II); ``K`` = assembled rim stiffness
-    + bolt springs (Eq. 6.24).  Pure and differentiable in every array leaf of ``p``.
+    + bolt springs (Eq. 6.24).  Pure and differentiable in every array leaf of ``p``; jit-compatible
+    (its pieces are jitted separately so that the element matrices compile once for every ``L``).
     """
     k_e, m_e = ring_element_matrices(p)
     K = _assemble(k_e, p.n_elements) + support_stiffness_matrix(p)
@@ -352,6 +362,7 @@ def assemble_ring(p: RingParams):
     return M, K, ring_dof_names(p)
 
 
+@jax.jit
 def natural_frequencies(M, K):
     """Undamped natural frequencies [Hz] and M-orthonormal mode shapes of ``K x = w^2 M x``.
 
@@ -370,6 +381,7 @@ def natural_frequencies(M, K):
     return w / (2.0 * math.pi), x
 
 
+@jax.jit
 def ring_natural_frequencies(p: RingParams):
     """:func:`natural_frequencies` of :func:`ring_matrices` ``(p)``: ``(f [Hz], modes)``."""
     M, K = ring_matrices(p)

@@ -1,0 +1,114 @@
+"""Transformations (jit, vmap, grad) through the solvers, dtypes, and input validation."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import pgtjax as pg
+
+
+def gear_like(k_mesh, gap, load=800.0):
+    """Two inertias (as translations) coupled by a backlash mesh, noise on the first."""
+    return pg.System(
+        mass=np.diag([2.0, 3.0]), stiffness=np.diag([0.0, 2.0e4]), damping=np.array([[30.0, -10.0], [-10.0, 40.0]]),
+        load=jnp.array([load, 0.0]), noise_input=np.array([[1.0], [0.0]]), spectral_density=20.0,
+        contacts=pg.Contacts(direction=[[1.0], [-1.0]], stiffness=jnp.atleast_1d(k_mesh), clearance=jnp.atleast_1d(gap)),
+    )
+
+
+def final_std(params):
+    k_mesh, gap = params
+    res = pg.solve_moments(gear_like(k_mesh, gap), dt=2e-3, n_steps=100, save_every=50, rtol=1e-14)
+    return res.std_u[-1, 1] + 10.0 * res.mean_delta[-1, 0]
+
+
+def test_grad_through_sl_matches_central_differences():
+    p = jnp.array([5.0e4, 0.02])
+    g = jax.grad(final_std)(p)
+    assert g.dtype == jnp.float64
+    for i, h in enumerate([5.0e4 * 1e-5, 0.02 * 1e-5]):
+        e = jnp.zeros(2).at[i].set(h)
+        fd = (final_std(p + e) - final_std(p - e)) / (2 * h)
+        np.testing.assert_allclose(float(g[i]), float(fd), rtol=1e-5)
+    # forward mode agrees with reverse mode
+    jv = jax.jvp(final_std, (p,), (jnp.array([1.0, 0.0]),))[1]
+    np.testing.assert_allclose(float(jv), float(g[0]), rtol=1e-9)
+
+
+def test_jit_and_vmap_over_a_parameter():
+    ks = jnp.array([3.0e4, 5.0e4, 8.0e4])
+    batched = jax.vmap(lambda k: final_std((k, 0.02)))(ks)
+    single = jnp.array([final_std((k, 0.02)) for k in ks])
+    np.testing.assert_allclose(batched, single, rtol=1e-10)
+    jitted = jax.jit(lambda p: final_std(p))(jnp.array([5.0e4, 0.02]))
+    np.testing.assert_allclose(jitted, single[1], rtol=1e-12)
+
+
+def test_results_are_float64_and_labelled(tmp_path):
+    res = pg.solve_moments(gear_like(5e4, 0.02), dt=2e-3, n_steps=20, save_every=10)
+    for leaf in jax.tree.leaves(res):
+        if eqx_is_float(leaf):
+            assert leaf.dtype == jnp.float64
+    assert res.dof_names == ("q0", "q1") and res.times.shape == (3,)
+    path = pg.save_results(tmp_path / "r.npz", res, note="test")
+    back, attrs = pg.load_results(path)
+    np.testing.assert_array_equal(back.std_u, res.std_u)
+    assert back.dof_names == res.dof_names and attrs == {"note": "test"}
+
+
+def eqx_is_float(x):
+    return hasattr(x, "dtype") and jnp.issubdtype(x.dtype, jnp.floating)
+
+
+def test_nonconvergence_is_reported():
+    res = pg.solve_moments(gear_like(5e4, 0.02), dt=2e-3, n_steps=10, max_iter=1, rtol=1e-300, throw=False)
+    assert not bool(jnp.all(res.converged))
+    with pytest.raises(Exception, match="did not converge"):
+        pg.solve_moments(gear_like(5e4, 0.02), dt=2e-3, n_steps=10, max_iter=1, rtol=1e-300)
+
+
+@pytest.mark.parametrize(
+    "make, match",
+    [
+        (lambda: pg.System(mass=[[-1.0]], stiffness=[[1.0]]), "mass"),
+        (lambda: pg.System(mass=[[0.0]], stiffness=[[1.0]]), "mass"),
+        (lambda: pg.System(mass=[[1.0, 2.0], [2.0, 1.0]], stiffness=np.eye(2)), "positive definite"),
+        (lambda: pg.System(mass=[[1.0, 0.5], [0.0, 1.0]], stiffness=np.eye(2)), "symmetric"),
+        (lambda: pg.System(mass=np.eye(2), stiffness=np.eye(3)), "stiffness"),
+        (lambda: pg.System(mass=[[1.0]], stiffness=[[np.nan]]), "finite"),
+        (lambda: pg.System(mass=[[1.0]], stiffness=[[1.0]], load=[np.inf]), "finite"),
+        (lambda: pg.System(mass=[[1.0]], stiffness=[[1.0]],
+                           contacts=pg.Contacts([[1.0]], [1.0], [-0.1])), "clearance"),
+        (lambda: pg.System(mass=[[1.0]], stiffness=[[1.0]],
+                           contacts=pg.Contacts([[1.0], [0.0]], [1.0], [0.1])), "direction"),
+        (lambda: pg.System(mass=[[1.0]], stiffness=[[1.0]], noise_input=[[1.0], [1.0]]), "noise_input"),
+        (lambda: pg.System(mass=[[1.0]], stiffness=[[1.0]], noise_input=[[1.0]], spectral_density=-1.0),
+         "spectral_density"),
+    ],
+)
+def test_bad_systems_raise_value_error(make, match):
+    with pytest.raises(ValueError, match=match):
+        pg.solve_moments(make(), dt=0.01, n_steps=2)
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(dt=0.0), "dt"), (dict(dt=-1.0), "dt"), (dict(dt=np.nan), "dt"), (dict(n_steps=0), "n_steps"),
+    (dict(n_steps=10, save_every=3), "multiple"), (dict(criterion="x"), "criterion"),
+    (dict(noise_scheme="euler"), "noise_scheme"), (dict(initial_displacement=[1.0]), "initial_displacement"),
+])
+def test_bad_solver_arguments_raise_value_error(kwargs, match):
+    args = dict(dt=0.01, n_steps=4) | kwargs
+    with pytest.raises(ValueError, match=match):
+        pg.solve_moments(gear_like(5e4, 0.02), **args)
+    if "criterion" not in kwargs:
+        with pytest.raises(ValueError, match=match):
+            pg.monte_carlo(gear_like(5e4, 0.02), n_samples=4, key=jax.random.key(0), progress=False, **args)
+
+
+def test_modal_analysis_two_dof():
+    m, k = 2.0, 800.0
+    sys = pg.System(mass=np.diag([m, m]), stiffness=np.array([[2 * k, -k], [-k, 2 * k]]))
+    modes = pg.modal_analysis(sys)
+    np.testing.assert_allclose(modes.angular_frequencies, [np.sqrt(k / m), np.sqrt(3 * k / m)], rtol=1e-12)
+    np.testing.assert_allclose(modes.shapes.T @ sys.mass @ modes.shapes, np.eye(2), atol=1e-12)

@@ -1,0 +1,122 @@
+"""Moment recursion of linear systems against independent answers (Lyapunov equations, thesis matrices)."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy import linalg
+
+import pgtjax as pg
+
+M = np.diag([1.0, 2.0])
+K = np.array([[300.0, -100.0], [-100.0, 200.0]])
+C = np.array([[4.0, -1.0], [-1.0, 3.0]])
+B = np.array([[1.0, 0.0], [0.3, 1.0]])
+S0 = np.array([0.2, 0.1])
+BS = B * np.sqrt(2 * np.pi * S0)[None, :]
+
+
+def linear_system():
+    return pg.System(mass=M, stiffness=K, damping=C, noise_input=B, spectral_density=S0,
+                     load=np.array([1.0, -2.0]), dof_names=["a", "b"])
+
+
+def thesis_step_matrices(h, scheme):
+    """T1 and T3 of thesis Eqs. 3.47 and 3.49, written out in numpy (independent of pgtjax)."""
+    n1 = np.block([[C + h / 2 * K, M], [M, -h / 2 * M]])
+    n2 = np.block([[C - h / 2 * K, M], [M, h / 2 * M]])
+    bridge = BS * h * np.sqrt(h) / np.sqrt(12.0) if scheme == "newmark" else 0.0 * BS
+    z = np.zeros_like(BS)
+    t1 = np.linalg.solve(n1, n2)
+    t3 = np.linalg.solve(n1, np.block([[np.sqrt(h) * BS, z], [z, bridge]]))
+    return t1, t3
+
+
+def state_matrix():
+    minv = np.linalg.inv(M)
+    a = np.block([[np.zeros((2, 2)), np.eye(2)], [-minv @ K, -minv @ C]])
+    q = np.zeros((4, 4))
+    q[2:, 2:] = minv @ BS @ BS.T @ minv.T
+    return a, q
+
+
+@pytest.mark.parametrize("scheme", ["trapezoidal", "newmark"])
+def test_stationary_covariance_equals_discrete_lyapunov(scheme):
+    h = 0.01
+    t1, t3 = thesis_step_matrices(h, scheme)
+    p_disc = linalg.solve_discrete_lyapunov(t1, t3 @ t3.T)
+    res = pg.solve_moments(linear_system(), dt=h, n_steps=4000, save_every=4000, noise_scheme=scheme)
+    std = np.concatenate([res.std_u[-1], res.std_v[-1]])
+    np.testing.assert_allclose(std, np.sqrt(np.diag(p_disc)), rtol=1e-8)
+    # Starting *at* the discrete solution, one step must return it exactly (full matrix, not only std).
+    res1 = pg.solve_moments(linear_system(), dt=h, n_steps=1, noise_scheme=scheme, initial_covariance=p_disc)
+    std1 = np.concatenate([res1.std_u[-1], res1.std_v[-1]])
+    np.testing.assert_allclose(std1, np.sqrt(np.diag(p_disc)), rtol=1e-12)
+    # and the mean follows T1 exactly (thesis Eq. 3.52 with the load term)
+    u0 = np.array([1e-3, -2e-3])
+    res2 = pg.solve_moments(linear_system(), dt=h, n_steps=1, noise_scheme=scheme, initial_displacement=u0)
+    n1 = np.block([[C + h / 2 * K, M], [M, -h / 2 * M]])
+    f = np.array([1.0, -2.0])
+    mean_thesis = t1 @ np.concatenate([u0, np.zeros(2)]) + np.linalg.solve(n1, np.concatenate([h * f, np.zeros(2)]))
+    np.testing.assert_allclose(np.concatenate([res2.mean_u[-1], res2.mean_v[-1]]), mean_thesis, rtol=1e-12)
+
+
+def test_trapezoidal_scheme_is_exact_in_the_stationary_limit_and_documents_scheme_follows_errata():
+    a, q = state_matrix()
+    p_c = linalg.solve_continuous_lyapunov(a, -q)
+    errors = []
+    steps = np.array([0.04, 0.02, 0.01, 0.005])
+    for h in steps:
+        t1, t3 = thesis_step_matrices(h, "trapezoidal")
+        np.testing.assert_allclose(linalg.solve_discrete_lyapunov(t1, t3 @ t3.T), p_c, rtol=1e-8, atol=1e-12)
+        t1, t3 = thesis_step_matrices(h, "newmark")
+        p_d = linalg.solve_discrete_lyapunov(t1, t3 @ t3.T)
+        # ERRATA: exactly P_c + h^2/12 A P_c A^T
+        np.testing.assert_allclose(p_d, p_c + h**2 / 12 * a @ p_c @ a.T, rtol=1e-8, atol=1e-14)
+        errors.append(np.linalg.norm(p_d - p_c) / np.linalg.norm(p_c))
+    order = np.polyfit(np.log(steps), np.log(errors), 1)[0]
+    assert 1.95 < order < 2.05
+
+
+@pytest.mark.parametrize("scheme", ["trapezoidal", "newmark"])
+def test_recursion_converges_to_continuous_lyapunov(scheme):
+    a, q = state_matrix()
+    p_c = linalg.solve_continuous_lyapunov(a, -q)
+    std_c = np.sqrt(np.diag(p_c))
+    errs, steps = [], [0.02, 0.01, 0.005]
+    for h in steps:
+        n = int(round(40.0 / h))
+        res = pg.solve_moments(linear_system(), dt=h, n_steps=n, save_every=n, noise_scheme=scheme)
+        std = np.concatenate([res.std_u[-1], res.std_v[-1]])
+        errs.append(np.max(np.abs(std - std_c) / std_c))
+    if scheme == "trapezoidal":
+        assert max(errs) < 1e-8
+    else:
+        order = np.polyfit(np.log(steps), np.log(errs), 1)[0]
+        assert 1.9 < order < 2.1, errs
+
+
+def test_mean_equals_deterministic_response():
+    system = linear_system()
+    res = pg.solve_moments(system, dt=0.005, n_steps=200, save_every=10)
+    traj = pg.simulate(system, dt=0.005, n_steps=200, save_every=10)
+    np.testing.assert_allclose(res.mean_u, traj.u, rtol=1e-10, atol=1e-14)
+    np.testing.assert_allclose(res.mean_v, traj.v, rtol=1e-10, atol=1e-13)
+    assert res.mean_u.dtype == jnp.float64 and res.std_u.dtype == jnp.float64
+
+
+def test_linear_contact_with_zero_clearance_is_exactly_linear():
+    """A b = 0 contact linearizes exactly (k_e = k, f_0 = k mu): same moments as putting k in K."""
+    g = np.array([[1.0], [-1.0]])
+    k_c = 150.0
+    with_contact = pg.System(mass=M, stiffness=K, damping=C, noise_input=B, spectral_density=S0,
+                             load=np.array([1.0, -2.0]),
+                             contacts=pg.Contacts(direction=g, stiffness=[k_c], clearance=[0.0]))
+    merged = pg.System(mass=M, stiffness=K + k_c * g @ g.T, damping=C, noise_input=B, spectral_density=S0,
+                       load=np.array([1.0, -2.0]))
+    for crit in ("force", "energy"):
+        r1 = pg.solve_moments(with_contact, dt=0.01, n_steps=300, save_every=30, criterion=crit)
+        r2 = pg.solve_moments(merged, dt=0.01, n_steps=300, save_every=30)
+        np.testing.assert_allclose(r1.mean_u, r2.mean_u, rtol=1e-10, atol=1e-15)
+        np.testing.assert_allclose(r1.std_u, r2.std_u, rtol=1e-10, atol=1e-15)
+        np.testing.assert_allclose(r1.mean_delta[:, 0], r2.mean_u[:, 0] - r2.mean_u[:, 1], rtol=1e-9, atol=1e-14)

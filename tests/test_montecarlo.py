@@ -1,0 +1,106 @@
+"""Monte Carlo of the nonlinear system against the recursion (linear case) and an exact stationary
+density (nonlinear backlash case)."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy import integrate
+
+import pgtjax as pg
+
+KEY = jax.random.key(20261121)
+
+
+def time_varying_system():
+    """2-DOF chain whose coupling spring is a b = 0 contact with a time-varying stiffness (Eq. 4.11 form)."""
+    stiff = pg.FourierSeries(mean=[400.0], sin_coefficients=[[80.0]], cos_coefficients=[[30.0]], frequency=9.0)
+    return pg.System(
+        mass=np.diag([1.0, 1.5]), stiffness=np.diag([200.0, 100.0]), damping=np.array([[2.0, -0.5], [-0.5, 1.5]]),
+        load=lambda t: jnp.array([5.0, 0.0]) * jnp.sin(3.0 * t), noise_input=np.array([[1.0], [0.5]]),
+        spectral_density=0.3, contacts=pg.Contacts(direction=[[1.0], [-1.0]], stiffness=stiff, clearance=[0.0],
+                                                   names=["coupling"]),
+        dof_names=["x1", "x2"],
+    )
+
+
+@pytest.mark.parametrize("scheme", ["trapezoidal", "newmark"])
+def test_linear_time_varying_mc_within_three_standard_errors(scheme):
+    system = time_varying_system()
+    kw = dict(dt=0.02, n_steps=150, save_every=30, noise_scheme=scheme)
+    ref = pg.solve_moments(system, **kw)
+    mc = pg.monte_carlo(system, n_samples=4000, key=KEY, chunk_size=4000, progress=False, **kw)
+    se_mean, se_std = mc.standard_error("u")
+    for i in range(1, len(mc.times)):  # skip t0, where both are exactly deterministic
+        assert np.all(np.abs(mc.mean_u[i] - ref.mean_u[i]) < 3 * se_mean[i]), i
+        assert np.all(np.abs(mc.std_u[i] - ref.std_u[i]) < 3 * se_std[i]), i
+    se_d = mc.std_delta[1:] / np.sqrt(mc.n_samples)
+    assert np.all(np.abs(mc.mean_delta[1:] - ref.mean_delta[1:]) < 3 * se_d)
+    assert mc.mean_u.dtype == jnp.float64
+
+
+def test_same_key_same_statistics_whatever_the_chunk_size():
+    system = time_varying_system()
+    kw = dict(dt=0.02, n_steps=40, save_every=10, key=KEY, n_samples=301, progress=False,
+              histograms={"u:x1": np.linspace(-0.2, 0.2, 21)}, histogram_times=[0.8])
+    a = pg.monte_carlo(system, chunk_size=301, **kw)
+    b = pg.monte_carlo(system, chunk_size=64, **kw)
+    np.testing.assert_allclose(a.mean_u, b.mean_u, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(a.std_u, b.std_u, rtol=1e-10)
+    np.testing.assert_array_equal(a.histograms["u:x1"], b.histograms["u:x1"])
+    assert b.n_samples == 301
+    # histogram counts are the samples inside the edges at the requested time
+    assert 0 < float(a.histograms["u:x1"].sum()) <= 301
+
+
+# ----------------------------------------------------------------------------- exact nonlinear answer
+# SDOF  m x'' + c x' + f(x) = F0 + w(t),  E[w w] = 2 pi S0 delta,  f = backlash (b, k).
+# Stationary Fokker-Planck solution: p(x, v) ~ exp(-(c / (pi S0)) (m v^2 / 2 + P(x) - F0 x)), so
+#   x has density ~ exp(-(c/(pi S0)) (P(x) - F0 x))  and  Var[v] = pi S0 / (c m) for any f.
+MASS, DAMP, KC, GAP, F0, S0 = 1.0, 1.0, 100.0, 0.01, 0.6, 3.2e-3
+
+
+def backlash_oscillator():
+    return pg.System(mass=[[MASS]], stiffness=[[0.0]], damping=[[DAMP]], load=[F0], noise_input=[[1.0]],
+                     spectral_density=S0, contacts=pg.Contacts(direction=[[1.0]], stiffness=[KC], clearance=[GAP]),
+                     dof_names=["x"])
+
+
+def exact_stationary_moments():
+    beta = DAMP / (np.pi * S0)
+    pot = lambda x: 0.5 * KC * (max(x - GAP, 0) ** 2 + max(-GAP - x, 0) ** 2) - F0 * x  # noqa: E731
+    x_min = GAP + F0 / KC
+    w = lambda x: np.exp(-beta * (pot(x) - pot(x_min)))  # noqa: E731
+    lo, hi, pts = -0.2, 0.2, [-GAP, GAP]
+    z = integrate.quad(w, lo, hi, points=pts, epsabs=0, epsrel=1e-12, limit=400)[0]
+    m1 = integrate.quad(lambda x: x * w(x), lo, hi, points=pts, epsabs=0, epsrel=1e-12, limit=400)[0] / z
+    m2 = integrate.quad(lambda x: (x - m1) ** 2 * w(x), lo, hi, points=pts, epsabs=0, epsrel=1e-12, limit=400)[0] / z
+    p_gap = integrate.quad(w, -GAP, GAP, epsabs=0, epsrel=1e-12)[0] / z
+    return m1, np.sqrt(m2), p_gap
+
+
+def test_backlash_oscillator_mc_matches_exact_stationary_density(capsys):
+    mean_x, std_x, p_gap = exact_stationary_moments()
+    std_v = np.sqrt(np.pi * S0 / (DAMP * MASS))
+    # starting at the static equilibrium; 16 s = 8 relaxation times of the velocity (c/m = 1/s)
+    kw = dict(dt=0.004, n_steps=4000, save_every=500, initial_displacement=[GAP + F0 / KC])
+    mc = pg.monte_carlo(backlash_oscillator(), n_samples=6000, key=KEY, progress=False, **kw)
+    # the last three saved times are 2 s apart (about 2 relaxation times): use the last one
+    se_mean, se_std = mc.standard_error("u")
+    assert abs(float(mc.mean_u[-1, 0]) - mean_x) < 3 * float(se_mean[-1, 0])
+    assert abs(float(mc.std_u[-1, 0]) - std_x) < 3 * float(se_std[-1, 0])
+    se_v = float(mc.std_v[-1, 0]) / np.sqrt(2 * (mc.n_samples - 1))
+    assert abs(float(mc.std_v[-1, 0]) - std_v) < 3 * se_v
+    p_loss = float(mc.contact_loss_probability[-1, 0])
+    assert abs(p_loss - p_gap) < 3 * np.sqrt(p_gap * (1 - p_gap) / mc.n_samples)
+    assert float(mc.unconverged) == 0.0
+    # how far SL is from the exact answer (reported, and bounded loosely)
+    with capsys.disabled():
+        print(f"\nexact: mean {mean_x:.6e} std {std_x:.6e} P(gap) {p_gap:.4f}; "
+              f"MC: mean {float(mc.mean_u[-1, 0]):.6e} std {float(mc.std_u[-1, 0]):.6e} P(gap) {p_loss:.4f}")
+        for crit in ("force", "energy"):
+            sl = pg.solve_moments(backlash_oscillator(), criterion=crit, **kw)
+            em = (float(sl.mean_u[-1, 0]) - mean_x) / std_x
+            es = float(sl.std_u[-1, 0]) / std_x - 1
+            print(f"SL {crit:6s}: mean error {em:+.3f} std_x, std error {100 * es:+.2f} %")
+            assert abs(em) < 0.5 and abs(es) < 0.3
