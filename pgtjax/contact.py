@@ -123,6 +123,11 @@ class ContactLaw(eqx.Module):
     def force_moments(self, mu, sigma, k, b) -> tuple[jnp.ndarray, jnp.ndarray]:
         """Mean and standard deviation of f(delta) for delta ~ N(mu, sigma^2)."""
 
+    @abc.abstractmethod
+    def solve_single(self, delta_lin, coupling, k, b):
+        """Solve ``delta + s f(delta) = delta_lin`` elementwise for one contact (``s >= 0``): the implicit
+        contact equation of a Newmark step in contact space. Returns ``(delta, converged)``."""
+
 
 class Backlash(ContactLaw):
     """Piecewise-linear backlash (dead-zone) law, thesis Eq. 3.32 / Eq. 4.9; ``b = 0`` is a linear spring."""
@@ -152,6 +157,14 @@ class Backlash(ContactLaw):
             # (mu - b)^2 / sigma^2 in permanent contact, so it is only meaningful for |mu| < b).
             excess = 0.5 * k * (_second_moment_ratio(z_up) + _second_moment_ratio(z_lo))
         return Linearization(2.0 / 3.0 * (k_force + excess), f_0)
+
+    def solve_single(self, delta_lin, coupling, k, b):
+        # Closed form: delta + s k (delta - b) = delta_lin on the upper flank iff delta_lin > b (s k >= 0).
+        sk = coupling * k
+        upper = (delta_lin + sk * b) / (1.0 + sk)
+        lower = (delta_lin - sk * b) / (1.0 + sk)
+        delta = jnp.where(delta_lin > b, upper, jnp.where(delta_lin < -b, lower, delta_lin))
+        return delta, jnp.ones(jnp.shape(delta), dtype=bool)
 
     def force_moments(self, mu, sigma, k, b):
         upper, lower = mu - b, -b - mu

@@ -7,8 +7,8 @@ chunk the samples are a batch (``vmap``-style matrix products) and time is a ``l
 ``n_samples x n_steps`` is kept: means and centred sums of squares are accumulated per saved time (Chan's
 parallel update between chunks), and histograms of chosen quantities are counted on the fly.
 
-Noise of sample ``s`` at step ``i`` is ``normal(fold_in(fold_in(key, s), i))``: a pure function of the key and
-the indices, so the same key gives the same statistics (to rounding) whatever the chunk size.
+Noise of sample ``s`` in saved block ``j`` is ``normal(fold_in(fold_in(key, s), j))``: a pure function of the key
+and the indices, so the same key gives the same statistics (to rounding) whatever the chunk size.
 """
 
 from __future__ import annotations
@@ -77,22 +77,26 @@ def _chunk(
         return mean, m2, loss, counts
 
     def block(carry, block_index):
-        def inner(c, j):
+        # One RNG call per sample and saved block (not per step): the draws of sample s in block j are
+        # normal(fold_in(fold_in(key, s), j)), independent of how samples are chunked.
+        if nd:
+            draws = jax.vmap(
+                lambda k: jax.random.normal(jax.random.fold_in(k, block_index), (save_every, nd))
+            )(sample_keys)
+            draws = jnp.swapaxes(draws, 0, 1)  # (save_every, batch, nd)
+        else:
+            draws = jnp.zeros((save_every, n_batch, 0))
+
+        def inner(c, xs):
+            j, step_draws = xs
             state, snap0, bad = c
-            step_index = block_index * save_every + j
-            t1 = t0 + dt * (step_index + 1)
+            t1 = t0 + dt * (block_index * save_every + j + 1)
             snap1 = snapshot(system, t1)
-            if nd:
-                draws = jax.vmap(lambda k: jax.random.normal(jax.random.fold_in(k, step_index), (nd,)))(
-                    sample_keys
-                )
-            else:
-                draws = jnp.zeros((n_batch, 0))
-            state, ok = sample_step(system, state, snap0, snap1, dt, draws, noise_scheme)
+            state, ok = sample_step(system, state, snap0, snap1, dt, step_draws, noise_scheme)
             bad = bad + jnp.sum(weights * (~ok))
             return (state, snap1, bad), None
 
-        carry, _ = jax.lax.scan(inner, carry, jnp.arange(save_every))
+        carry, _ = jax.lax.scan(inner, carry, (jnp.arange(save_every), draws))
         state, snap, _ = carry
         return carry, statistics(state, snap)
 

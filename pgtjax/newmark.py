@@ -173,9 +173,13 @@ def sample_step(system: System, state: SampleState, s0: Snapshot, s1: Snapshot, 
         u_lin = u_lin - state.force @ kinv_g0.T
         coupling = s1.direction.T @ kinv_g1
         k1, b = s1.contact_stiffness, system.contacts.clearance
-        delta, ok = jax.vmap(lambda dl: solve_contacts(dl, coupling, k1, b, system.contacts.law))(
-            u_lin @ s1.direction
-        )
+        law = system.contacts.law
+        delta_lin = u_lin @ s1.direction
+        if nc == 1:  # scalar contact: the law's own (closed-form where it exists) solve, no vmap
+            delta, ok = law.solve_single(delta_lin, coupling[0, 0], k1[None, :], b[None, :])
+            ok = ok[:, 0]
+        else:
+            delta, ok = jax.vmap(lambda dl: solve_contacts(dl, coupling, k1, b, law))(delta_lin)
         force = system.contacts.law.force(delta, k1[None, :], b[None, :])
         u1 = u_lin - force @ kinv_g1.T
     else:

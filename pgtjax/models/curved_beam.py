@@ -51,6 +51,7 @@ SI units throughout: m, kg, N, rad, Pa.
 
 from __future__ import annotations
 
+import math
 from functools import partial
 
 import jax
@@ -114,38 +115,93 @@ def nodal_basis_matrix(angle, radius, jf):
     return jnp.concatenate([shape_basis(-h, radius, jf), shape_basis(h, radius, jf)], axis=0)
 
 
-def _basis_change(angle, jf):
-    """Fixed recombination ``T`` (6 x 6) of the modes G1..G6 into a better-conditioned basis.
+def _series(s, coeffs, first_power):
+    """sum_k coeffs[k] s^(first_power + 2k) (Horner in s^2)."""
+    s2 = s * s
+    acc = jnp.zeros_like(s)
+    for ck in reversed(coeffs):
+        acc = acc * s2 + ck
+    return acc * s**first_power
 
-    For a short arc the six modes are nearly linearly dependent (``cos s ~ 1``, ``G1 ~ G2`` ...) and
-    ``B`` becomes ill conditioned (condition number ~1e7 at 256 elements).  The columns of ``T`` are
-    combinations whose Taylor expansions in the centred angle start at increasing powers
-    (1, 1, s, s^2, s^3 and the pure-extension mode), each scaled to O(1) on the element.  The spanned
-    space, hence every matrix built from it, is unchanged in exact arithmetic.  (Forming the
-    combinations numerically still cancels O(1) terms down to O(h^3), so shape-function entries carry
-    absolute round-off of ~1e-16 / h^3: ~1e-12 at L = 64, ~1e-10 at L = 256.)
+
+_NT = 12  # series terms: |error| < 1e-17 for |s| <= 1.2
+# S(s) = sin s - s cos s = sum_{k>=1} (-1)^(k+1) 2k s^(2k+1) / (2k+1)!
+_S_C = [(-1) ** (k + 1) * 2 * k / math.factorial(2 * k + 1) for k in range(1, _NT + 1)]
+# P(s) = 2 (1 - cos s) - s sin s = sum_{k>=2} (-1)^k (2k-2) s^(2k) / (2k)!
+_P_C = [(-1) ** k * (2 * k - 2) / math.factorial(2 * k) for k in range(2, _NT + 2)]
+# g(s) = 2 s - 3 sin s + s cos s = sum_{k>=2} (-1)^k (2k-2) s^(2k+1) / (2k+1)!
+_G_C = [(-1) ** k * (2 * k - 2) / math.factorial(2 * k + 1) for k in range(2, _NT + 2)]
+# Q(s) = s - sin s = sum_{k>=1} (-1)^(k+1) s^(2k+1) / (2k+1)!
+_Q_C = [(-1) ** (k + 1) / math.factorial(2 * k + 1) for k in range(1, _NT + 1)]
+
+
+def _stable(s, direct, coeffs, first_power):
+    """Cancellation-free evaluation: Taylor series for |s| < 1.2, the closed form beyond."""
+    small = jnp.abs(s) < 1.2
+    s_small = jnp.where(small, s, 0.0)
+    return jnp.where(small, _series(s_small, coeffs, first_power), direct(s))
+
+
+def _fun_s(s):
+    return _stable(s, lambda x: jnp.sin(x) - x * jnp.cos(x), _S_C, 3)
+
+
+def _fun_p(s):
+    return _stable(s, lambda x: 2.0 * (1.0 - jnp.cos(x)) - x * jnp.sin(x), _P_C, 4)
+
+
+def _fun_g(s):
+    return _stable(s, lambda x: 2.0 * x - 3.0 * jnp.sin(x) + x * jnp.cos(x), _G_C, 5)
+
+
+def _fun_q(s):
+    return _stable(s, lambda x: x - jnp.sin(x), _Q_C, 3)
+
+
+def _recombined(s, h, radius, delta):
+    """Displacements (3 x 6) and strains (2 x 6) of a well-conditioned basis of the same six modes.
+
+    For a short arc the thesis modes G1..G6 are nearly linearly dependent (``cos s ~ 1``, ``G1 ~ G2``
+    ...): ``B`` of Eq. 3.60 reaches a condition number ~1e7 at 256 elements and forming ``B^-1``
+    loses digits.  The element is therefore built on the recombination (``s`` = angle from the
+    element midpoint, ``h`` = half arc angle, ``delta = I / (A R^2) = J - 1``)::
+
+        c0 = G5                         (0, 1)                    rigid rotation
+        c1 = G2                         (cos s, sin s)            rigid translation
+        c2 = (G3 + G5) / h              (sin s, 1 - cos s) / h    rigid translation
+        c3 = G4 / h^2                   inextensional, chi ~ cos s
+        c4 = 3 (G6 - G3 - 2 G5) / h^3   inextensional, chi ~ sin s
+        c5 = (2 (G1 - G2) - G4) / nu    constant extension, nu = 2 delta h + g(h)
+
+    whose entries are O(1) on the element, and every difference that would cancel (``1 - cos s``,
+    ``sin s - s cos s`` ...) is evaluated by its Taylor series (:func:`_stable`).  The spanned space,
+    hence every element matrix, is the thesis's; only round-off differs.  Strains are the analytic
+    ``eps = (u_tau' - u_r) / R`` and ``chi = (u_r'' + u_r) / R^2`` of each combination.
     """
+    c, sn = jnp.cos(s), jnp.sin(s)
+    one, zero = jnp.ones_like(s), jnp.zeros_like(s)
+    omc = 2.0 * jnp.sin(0.5 * s) ** 2  # 1 - cos s
+    fs, fp, fg, fq = _fun_s(s), _fun_p(s), _fun_g(s), _fun_q(s)
+    nu = 2.0 * delta * h + _fun_g(h)
+    h2, h3 = h * h, h * h * h
+    ur = jnp.stack([zero, c, sn / h, s * sn / h2, -3.0 * fs / h3, fp / nu])
+    ut = jnp.stack([one, sn, omc / h, fs / h2, -3.0 * fp / h3, (2.0 * delta * s + fg) / nu])
+    # u_theta = (u_tau + u_r') / R, combined analytically
+    uth = jnp.stack([one, zero, one / h, 2.0 * sn / h2, -6.0 * omc / h3, 2.0 * (delta * s + fq) / nu])
+    uth = uth / radius
+    eps = jnp.stack([zero, zero, zero, zero, zero, 2.0 * delta / nu * one]) / radius
+    chi = jnp.stack([zero, zero, zero, 2.0 * c / h2, -6.0 * sn / h3, 2.0 * omc / nu]) / radius**2
+    return jnp.stack([ur, ut, uth]), jnp.stack([eps, chi])
+
+
+def _nodal_inverse(angle, radius, delta):
+    """``C`` (6 x 6) mapping nodal DOFs to the coefficients of the recombined basis (``(B T)^-1``)."""
     h = 0.5 * angle
-    e = jnp.eye(6)
-    nu = 2.0 * jf * h - 3.0 * jnp.sin(h) + h * jnp.cos(h)  # tangential value of the extension mode at s=h
-    cols = [
-        e[4],
-        e[1],
-        (e[2] + e[4]) / h,
-        e[3] / h**2,
-        3.0 * (e[5] - e[2] - 2.0 * e[4]) / h**3,
-        (2.0 * (e[0] - e[1]) - e[3]) / nu,
-    ]
-    return jnp.stack(cols, axis=1)
-
-
-def _nodal_inverse(angle, radius, jf):
-    """``(T, C)`` with ``G = T C u_nodes``; i.e. ``T C = B^-1`` computed in the well-conditioned basis."""
-    t = _basis_change(angle, jf)
     scale = jnp.stack([1.0, 1.0, radius, 1.0, 1.0, radius])  # make the rotation rows dimensionless
-    bs = (scale[:, None] * nodal_basis_matrix(angle, radius, jf)) @ t
-    c = jnp.linalg.solve(bs, jnp.diag(scale))
-    return t, c
+    bt = jnp.concatenate(
+        [_recombined(-h, h, radius, delta)[0], _recombined(h, h, radius, delta)[0]], axis=0
+    )
+    return jnp.linalg.solve(scale[:, None] * bt, jnp.diag(scale))
 
 
 @jax.jit
@@ -161,9 +217,9 @@ def element_shape_matrix(s, angle, radius, area, second_moment):
         (3, 6) array; rows give (u_r [m], u_tau [m], u_theta [rad]) at ``s`` per unit nodal DOF, columns
         are ``(u_r1, u_tau1, u_theta1, u_r2, u_tau2, u_theta2)``.
     """
-    jf = j_factor(radius, area, second_moment)
-    t, c = _nodal_inverse(angle, radius, jf)
-    return (shape_basis(s - 0.5 * angle, radius, jf) @ t) @ c
+    delta = second_moment / (area * radius**2)
+    c = _nodal_inverse(angle, radius, delta)
+    return _recombined(s - 0.5 * angle, 0.5 * angle, radius, delta)[0] @ c
 
 
 def _gauss(angle):
@@ -176,23 +232,24 @@ def _gauss(angle):
 def element_stiffness(angle, radius, area, second_moment, youngs_modulus):
     """Element stiffness matrix (6 x 6) [N/m, N/rad, N m/rad] from the strain energy.
 
-    ``k = B^-T [ int_{-a/2}^{a/2} S(s)^T diag(E A, E I) S(s) R ds ] B^-1`` with ``S`` from
-    :func:`strain_basis` (membrane + bending of a thin ring; replaces Eq. 3.12 / 6.19).
+    ``k = B^-T [ int_{-a/2}^{a/2} S(s)^T diag(E A, E I) S(s) R ds ] B^-1`` with ``S`` the strains
+    (eps, chi) of the modes (:func:`strain_basis`; membrane + bending of a thin ring; replaces
+    Eq. 3.12 / 6.19), evaluated in the recombined basis of :func:`_recombined`.
 
     Args:
         angle: element arc angle [rad]; radius: centre-line radius R [m]; area: A [m^2];
         second_moment: I [m^4] (in-plane bending); youngs_modulus: E [Pa].
     """
-    jf = j_factor(radius, area, second_moment)
+    delta = second_moment / (area * radius**2)
     xs, ws = _gauss(angle)
+    c = _nodal_inverse(angle, radius, delta)
 
     def integrand(s):
-        st = strain_basis(s, radius, jf)
+        st = _recombined(s, 0.5 * angle, radius, delta)[1]
         return youngs_modulus * (area * jnp.outer(st[0], st[0]) + second_moment * jnp.outer(st[1], st[1]))
 
     kg = jnp.einsum("q,qij->ij", ws, jax.vmap(integrand)(xs)) * radius
-    t, c = _nodal_inverse(angle, radius, jf)
-    k = c.T @ (t.T @ kg @ t) @ c
+    k = c.T @ kg @ c
     return 0.5 * (k + k.T)
 
 
@@ -204,18 +261,18 @@ def element_mass(angle, radius, area, second_moment, density, rotary_inertia=Tru
     ``I`` term is the rotary inertia of the cross-section; it is dropped if ``rotary_inertia`` is
     False (a Python bool).  Arguments as :func:`element_stiffness`; density rho [kg/m^3].
     """
-    jf = j_factor(radius, area, second_moment)
+    delta = second_moment / (area * radius**2)
     xs, ws = _gauss(angle)
     rot = second_moment if rotary_inertia else 0.0 * second_moment
     lam = jnp.stack([area, area, rot])
+    c = _nodal_inverse(angle, radius, delta)
 
     def integrand(s):
-        h = shape_basis(s, radius, jf)
+        h = _recombined(s, 0.5 * angle, radius, delta)[0]
         return jnp.einsum("k,ki,kj->ij", lam, h, h)
 
     mg = jnp.einsum("q,qij->ij", ws, jax.vmap(integrand)(xs)) * (density * radius)
-    t, c = _nodal_inverse(angle, radius, jf)
-    m = c.T @ (t.T @ mg @ t) @ c
+    m = c.T @ mg @ c
     return 0.5 * (m + m.T)
 
 

@@ -34,7 +34,12 @@ Assumptions (the paper is silent):
 * standard full-depth teeth without profile shift, zero backlash, tooth thickness p/2 on the pitch
   circle; operating pressure angle = generating pressure angle, standard centre distance;
 * below the base circle the external tooth flank is continued radially (the trochoidal fillet is
-  not modelled); the beam is clamped at the root circle;
+  not modelled); the beam is clamped at the root circle and runs up to the section through the
+  contact point (Eq. 3 stops at the load point on the axis; nearly the same energy for external
+  teeth, but ring teeth loaded near their root have their load point below the root circle). Sainsot's
+  u_f is then signed (slight extrapolation of the fit);
+* Eq. 13 defines K_h as the secant F_h/delta_h; the mesh stiffness uses the tangent dF_h/d delta_h
+  = 1.08 F_h/delta_h (the one a Newton/linearized dynamic model needs); both are returned;
 * internal (ring) teeth: the flank is the exact internal involute (the tooth is the complement of
   an external tooth space, thicker at its root, which lies at the *larger* radius); the Cornell
   beam is built the same way with the beam axis pointing inwards. Sainsot's fillet formula was fitted
@@ -45,8 +50,8 @@ Assumptions (the paper is silent):
   :func:`equivalent_radius` gives the relative radius of curvature with the internal sign
   (``1/R = 1/R1 - 1/R2``), used by :func:`hertz_half_width`; the stiffness does not use it;
 * tooth bending uses the plane-strain modulus ``E/(1-nu^2)`` (wide spur teeth). The paper's Eq. 4,
-  ``E(1-nu)/((1+nu)(1-2nu))``, is the constrained (uniaxial-strain) modulus, which would stiffen the
-  tooth by 22 % for nu = 0.3; it is available as ``modulus_kind="paper_eq4"``. The fillet term uses
+  ``E(1-nu)/((1+nu)(1-2nu))``, is the constrained (uniaxial-strain) modulus, which would raise the bending
+  and axial stiffness terms by 22 % for nu = 0.3; it is available as ``modulus_kind="paper_eq4"``. The fillet term uses
   ``E`` as in Eq. 8.
 """
 
@@ -108,6 +113,7 @@ __all__ = [
     "mesh_frequency",
     "mesh_cycles",
     "mesh_phase",
+    "planet_phase_history",
     "mesh_load_from_sun_torque",
     "back_to_back_meshes",
 ]
@@ -269,9 +275,8 @@ class SpurMesh(eqx.Module):
         self.modulus_kind = modulus_kind
 
     def __check_init__(self):
-        leaves = (self.module, self.pressure_angle, self.addendum_coef, self.dedendum_coef)
-        if not all(_is_concrete(x) for x in leaves):
-            return
+        if not all(_is_concrete(x) for x in jax.tree.leaves(self)):
+            return  # built inside a trace (vmap/jit over parameters): geometry checks need values
         path = contact_path(self)
         g = _gear(self, "gear")
         p = _gear(self, "pinion")
@@ -292,7 +297,8 @@ class SpurMesh(eqx.Module):
             if float(tooth_half_angle(gear, gear.r_tip)) <= 0.0:
                 raise ValueError(f"{name} teeth are pointed (zero tip thickness); reduce `addendum_coef`")
         r1, r2 = contact_radii(self, jnp.stack([path.s_start, path.s_end]))
-        if float(jnp.min(r1)) < float(p.r_root) or (not self.internal and float(jnp.min(r2)) < float(g.r_root)):
+        below_gear_root = not self.internal and float(jnp.min(r2)) < float(g.r_root)
+        if float(jnp.min(r1)) < float(p.r_root) or below_gear_root:
             raise ValueError("contact reaches below the root circle; reduce `addendum_coef`")
 
 
@@ -424,7 +430,10 @@ def contact_radii(mesh: SpurMesh, s) -> tuple[Array, Array]:
 # --------------------------------------------------------------------------------------------
 
 
-def cornell_beam_compliance(xi, half_thickness, xi_load, beta, face_width, e_beam, shear_modulus, shear_factor):
+@jax.jit
+def cornell_beam_compliance(
+    xi, half_thickness, xi_load, beta, face_width, e_beam, shear_modulus, shear_factor
+):
     """Compliance [m/N] of a segmented cantilever tooth (paper Eq. 3 divided by F, i.e. 1/Eq. 7).
 
     Derived from the strain energy of a beam clamped at xi = 0 and loaded at xi_load on its axis by a force
@@ -479,13 +488,23 @@ def _tooth_bending_compliance(mesh: SpurMesh, gear: _Gear, r) -> Array:
     y = r_nodes * jnp.sin(psi)
     e_beam = effective_modulus(mesh.youngs_modulus, mesh.poisson_ratio, mesh.modulus_kind)
     shear_mod = mesh.youngs_modulus / (2.0 * (1.0 + mesh.poisson_ratio))
-    return cornell_beam_compliance(xi, y, xi_load, beta, mesh.face_width, e_beam, shear_mod, mesh.shear_factor)
+    return cornell_beam_compliance(
+        xi, y, xi_load, beta, mesh.face_width, e_beam, shear_mod, mesh.shear_factor
+    )
 
 
+@jax.jit
 def sainsot_coefficients(hub_ratio, theta_f) -> Array:
     """(L*, M*, P*, Q*) of Sainsot et al. 2004 (paper Eq. 9, ERRATA form); theta_f in rad. Shape (4,)."""
     basis = jnp.stack(
-        [1.0 / theta_f**2, hub_ratio**2, hub_ratio / theta_f, 1.0 / theta_f, hub_ratio, jnp.ones_like(theta_f)]
+        [
+            1.0 / theta_f**2,
+            hub_ratio**2,
+            hub_ratio / theta_f,
+            1.0 / theta_f,
+            hub_ratio,
+            jnp.ones_like(theta_f),
+        ]
     )
     return jnp.asarray(SAINSOT_COEFFS) @ basis
 
@@ -540,6 +559,7 @@ def fillet_stiffness(mesh: SpurMesh, s, which: str) -> Array:
 # --------------------------------------------------------------------------------------------
 
 
+@jax.jit
 def hertz_force(delta, length) -> Array:
     """Contact force F_h [N] at contact deflection delta [m] over contact length l [m] (Eq. 12, SI).
 
@@ -551,6 +571,7 @@ def hertz_force(delta, length) -> Array:
     return jnp.where(pos, f, 0.0)
 
 
+@jax.jit
 def hertz_stiffness(delta, length) -> Array:
     """Tangent Hertzian stiffness dF_h/d delta [N/m] (derivative of Eq. 12): 1.08 F_h/delta."""
     pos = delta > 0.0
@@ -564,11 +585,13 @@ def hertz_stiffness(delta, length) -> Array:
     return jnp.where(pos, k, 0.0)
 
 
+@jax.jit
 def hertz_secant_stiffness(delta, length) -> Array:
     """Secant Hertzian stiffness F_h/delta [N/m], the paper's Eq. 13 definition of K_h."""
     return hertz_stiffness(delta, length) / HARSHA_DEFLECTION_EXP
 
 
+@jax.jit
 def hertz_deflection(force, length) -> Array:
     """Contact deflection [m] under force F [N] over length l [m]: exact inverse of Eq. 12."""
     pos = force > 0.0
@@ -577,6 +600,7 @@ def hertz_deflection(force, length) -> Array:
     return jnp.where(pos, d, 0.0)
 
 
+@jax.jit
 def hertz_deflection_eq11(force, length) -> Array:
     """Contact deflection [m] from Eq. 11 as printed (mm/N fit), for comparison with Eq. 12."""
     pos = force > 0.0
@@ -592,7 +616,7 @@ def equivalent_radius(mesh: SpurMesh, s) -> Array:
     rho are the involute radii of curvature (distances to the tangent points). For an internal gear the
     ring flank is concave, sign = -1. Not used by the Harsha stiffness law (which has no curvature term).
     """
-    p, g = _gear(mesh, "pinion"), _gear(mesh, "gear")
+    g = _gear(mesh, "gear")
     path = contact_path(mesh)
     rho1 = s
     rho2 = path.line_length - g.sign * s
@@ -616,17 +640,24 @@ def series_stiffness(*stiffnesses) -> Array:
     return 1.0 / sum(1.0 / k for k in stiffnesses)
 
 
+def _tooth_pair_compliances(mesh: SpurMesh, s) -> tuple[Array, Array]:
+    """Bending and fillet compliances [m/N] of (pinion, gear) teeth at LOA position s, shapes (2,).
+
+    The two teeth are evaluated in one vectorized pass (half the traced program of two calls).
+    """
+    r = jnp.stack(contact_radii(mesh, s))
+    p, g = _gear(mesh, "pinion"), _gear(mesh, "gear")
+    both = jax.tree.map(lambda a, b: jnp.stack([_f64(a), _f64(b)]), p, g)
+    return jax.vmap(
+        lambda gear, rr: (_tooth_bending_compliance(mesh, gear, rr), _tooth_fillet_compliance(mesh, gear, rr))
+    )(both, r)
+
+
 @jax.jit
 def pair_linear_compliance(mesh: SpurMesh, s) -> Array:
     """Load-independent part of a pair's compliance [m/N]: 1/K_b + 1/K_f of pinion and gear (Eq. 1)."""
-    r1, r2 = contact_radii(mesh, s)
-    p, g = _gear(mesh, "pinion"), _gear(mesh, "gear")
-    return (
-        _tooth_bending_compliance(mesh, p, r1)
-        + _tooth_fillet_compliance(mesh, p, r1)
-        + _tooth_bending_compliance(mesh, g, r2)
-        + _tooth_fillet_compliance(mesh, g, r2)
-    )
+    cb, cf = _tooth_pair_compliances(mesh, s)
+    return jnp.sum(cb) + jnp.sum(cf)
 
 
 class PairStiffness(NamedTuple):
@@ -645,12 +676,9 @@ class PairStiffness(NamedTuple):
 @jax.jit
 def pair_stiffness(mesh: SpurMesh, s, load) -> PairStiffness:
     """All stiffness components of one pair at LOA position s [m] carrying normal load F [N] (Eqs. 1-13)."""
-    r1, r2 = contact_radii(mesh, s)
-    p, g = _gear(mesh, "pinion"), _gear(mesh, "gear")
-    kb1 = 1.0 / _tooth_bending_compliance(mesh, p, r1)
-    kf1 = 1.0 / _tooth_fillet_compliance(mesh, p, r1)
-    kb2 = 1.0 / _tooth_bending_compliance(mesh, g, r2)
-    kf2 = 1.0 / _tooth_fillet_compliance(mesh, g, r2)
+    cb, cf = _tooth_pair_compliances(mesh, s)
+    kb1, kb2 = 1.0 / cb[0], 1.0 / cb[1]
+    kf1, kf2 = 1.0 / cf[0], 1.0 / cf[1]
     dh = hertz_deflection(load, mesh.face_width)
     kh = hertz_stiffness(dh, mesh.face_width)
     return PairStiffness(
@@ -676,7 +704,7 @@ def _newton_root(fun, slope, x0) -> Array:
 
 
 def _pair_hertz_deflection(compliance, coef, delta) -> Array:
-    """Solve delta_h + c F_h(delta_h) = delta for delta_h >= 0 (convex increasing; Newton from delta_h = delta)."""
+    """Solve delta_h + c F_h(delta_h) = delta for delta_h >= 0 (convex, increasing; Newton from delta)."""
     pos = delta > 0.0
     dp = jnp.where(pos, delta, 1.0)
     p = HARSHA_DEFLECTION_EXP
@@ -690,7 +718,7 @@ def _pair_hertz_deflection(compliance, coef, delta) -> Array:
 
 @jax.jit
 def pair_force(mesh: SpurMesh, s, delta) -> Array:
-    """Normal force [N] carried by one pair at LOA position s for mesh deflection delta [m] (0 if delta <= 0)."""
+    """Normal force [N] of one pair at LOA position s [m] for mesh deflection delta [m] (0 if delta <= 0)."""
     coef = HARSHA_FORCE_COEF_SI * mesh.face_width**HARSHA_LENGTH_EXP
     dh = _pair_hertz_deflection(pair_linear_compliance(mesh, s), coef, delta)
     return hertz_force(dh, mesh.face_width)
@@ -744,7 +772,7 @@ class MeshState(NamedTuple):
 
 @partial(jax.jit, static_argnames=("pinion_drives",))
 def mesh_state(mesh: SpurMesh, phase, load, pinion_drives: bool = True) -> MeshState:
-    """Load sharing and mesh stiffness at mesh phase lam under total normal load F [N] > 0.
+    """Load sharing and mesh stiffness at mesh phase lam under total normal load F [N] (must be > 0).
 
     All pairs in contact share one deflection delta; delta solves sum_k F_k(delta) = F (Newton from
     the right on a convex increasing function, started from pair 0 carrying the whole load, so the
@@ -760,7 +788,7 @@ def mesh_state(mesh: SpurMesh, phase, load, pinion_drives: bool = True) -> MeshS
         dh = jax.vmap(lambda c: _pair_hertz_deflection(c, coef, delta))(comp)
         f = jnp.where(on, coef * dh**p, 0.0)
         kh = coef * p * jnp.where(dh > 0.0, dh, 1.0) ** (p - 1.0)
-        k = jnp.where(on, 1.0 / (comp + 1.0 / kh), 0.0)
+        k = jnp.where(on & (dh > 0.0), 1.0 / (comp + 1.0 / kh), 0.0)
         return dh, f, k, kh
 
     delta0 = comp[0] * load + hertz_deflection(load, mesh.face_width)
@@ -798,7 +826,7 @@ def mesh_cycle(mesh: SpurMesh, load, n_points: int = 256, pinion_drives: bool = 
 
 
 def periodic_interp(table, phase) -> Array:
-    """Linear interpolation of a table sampled on arange(n)/n of a 1-periodic function at phase (any shape)."""
+    """Linear interpolation at ``phase`` (any shape) of a 1-periodic table sampled on arange(n)/n."""
     table = jnp.asarray(table)
     n = table.shape[0]
     x = jnp.mod(phase, 1.0) * n
@@ -812,6 +840,7 @@ def periodic_interp(table, phase) -> Array:
 # --------------------------------------------------------------------------------------------
 
 
+@partial(jax.jit, static_argnames=("z_sun", "z_ring"))
 def planet_mesh_phases(z_sun: int, z_ring: int, planet_angles) -> tuple[Array, Array]:
     """Mesh phases of planet n relative to planet 1 (Parker & Lin 2004), fractions in [0, 1).
 
@@ -845,7 +874,8 @@ def sun_ring_phase(sun_mesh: SpurMesh, ring_mesh: SpurMesh) -> Array:
     p = _gear(sun_mesh, "pinion")
     ps, pr = contact_path(sun_mesh), contact_path(ring_mesh)
     psi_b = jnp.pi / (2.0 * p.z) + involute(p.pressure_angle)
-    num = p.r_base * (sun_mesh.pressure_angle + ring_mesh.pressure_angle + 2.0 * psi_b) - pr.s_start - ps.s_end
+    angles = sun_mesh.pressure_angle + ring_mesh.pressure_angle + 2.0 * psi_b
+    num = p.r_base * angles - pr.s_start - ps.s_end
     return jnp.mod(num / ps.base_pitch - 0.5 * p.z, 1.0)
 
 
@@ -862,6 +892,7 @@ def mesh_frequency(z_sun: int, z_ring: int, *, carrier_freq=None, sun_freq=None,
     return z_ring * (jnp.asarray(carrier_freq, dtype=jnp.float64) - ring_freq)
 
 
+@jax.jit
 def mesh_cycles(times, mesh_freq, cycles0=0.0) -> Array:
     """Mesh cycles elapsed [-], the integral of the instantaneous mesh frequency (cumulative trapezoid).
 
@@ -874,9 +905,29 @@ def mesh_cycles(times, mesh_freq, cycles0=0.0) -> Array:
     return cycles0 + jnp.concatenate([jnp.zeros((1,), jnp.float64), jnp.cumsum(inc)])
 
 
+@jax.jit
 def mesh_phase(times, mesh_freq, phase0=0.0) -> Array:
     """Mesh phase lam(t) in [0, 1): frac(phase0 + integral of f_m dt)."""
     return jnp.mod(mesh_cycles(times, mesh_freq, phase0), 1.0)
+
+
+def planet_phase_history(times, carrier_freq, sun_mesh: SpurMesh, ring_mesh: SpurMesh, planet_angles,
+                         ring_freq=0.0, phase0=0.0) -> tuple[Array, Array]:
+    """Mesh phases of every planet's sun and ring meshes over a speed history, each (n_t, N).
+
+    lam_sn(t) = frac(c(t) - gamma_sn), lam_rn(t) = frac(c(t) - gamma_rn + gamma_rs), where c(t) is the
+    integral of the mesh frequency (cumulative trapezoid over ``times`` [s] of ``carrier_freq`` [Hz]),
+    gamma_sn, gamma_rn from :func:`planet_mesh_phases` and gamma_rs from :func:`sun_ring_phase`. Evaluate
+    the stiffness with ``periodic_interp(table, lam)`` of a :func:`mesh_cycle` table. Assumes the sun turns
+    in the positive direction relative to the carrier (positive mesh frequency).
+    """
+    fm = mesh_frequency(sun_mesh.z_gear, ring_mesh.z_gear, carrier_freq=carrier_freq, ring_freq=ring_freq)
+    cyc = mesh_cycles(times, fm, phase0)
+    gs, gr = planet_mesh_phases(sun_mesh.z_gear, ring_mesh.z_gear, planet_angles)
+    grs = sun_ring_phase(sun_mesh, ring_mesh)
+    lam_s = jnp.mod(cyc[:, None] - gs[None, :], 1.0)
+    lam_r = jnp.mod(cyc[:, None] - gr[None, :] + grs, 1.0)
+    return lam_s, lam_r
 
 
 def mesh_load_from_sun_torque(sun_mesh: SpurMesh, sun_torque, n_planets: int) -> Array:

@@ -31,6 +31,10 @@ Moving loads (Eqs. 3.20-3.23, 6.11-6.15): :func:`ring_interpolation` returns the
 contact point is ``a @ U`` and the work-equivalent nodal force of a point load is ``a[:2].T @ (F_r,
 F_tau)``.  Everything is branch-free in ``theta`` (jit / vmap / grad safe).
 
+Compilation: the element kernels (:mod:`~pgtjax.models.curved_beam`) are jitted with the arc angle
+as a traced argument, so they compile once for every mesh; the public functions here are plain
+Python compositions (wrap your own time loop in ``jax.jit``; they trace inside it).
+
 SI units: m, kg, N, rad, Pa, Hz.
 """
 
@@ -87,6 +91,8 @@ class RingParams(eqx.Module):
 
     Array leaves (float64 scalars; the support stiffnesses may also be one value per support) are
     differentiable; ``n_elements``, ``n_teeth``, ``support_nodes`` and ``rotary_inertia`` are static.
+    Values are checked in ``__init__`` (``ValueError`` naming the parameter and its range); traced
+    values (a RingParams built inside ``jit``/``grad``) cannot be checked and are passed through.
 
     Attributes:
         radius: centre-line (mean) radius of the rim R [m], > 0.
@@ -246,7 +252,6 @@ def _assemble(block, n_elements: int):
     return jnp.zeros((n, n), dtype=block.dtype).at[rows, cols].add(blocks)
 
 
-@jax.jit
 def support_stiffness_matrix(p: RingParams):
     """Grounded bolt springs ``K_S`` (3L x 3L) of Eq. 6.24: diag(k_r, k_tau, k_theta) at each support node."""
     n = p.n_dof
@@ -267,7 +272,6 @@ def support_stiffness_matrix(p: RingParams):
     return jnp.diag(ks)
 
 
-@jax.jit
 def ring_shape_at(p: RingParams, theta):
     """Element DOFs and shape-function matrix at global angle ``theta`` [rad] (any real, wraps 2 pi).
 
@@ -286,7 +290,6 @@ def ring_shape_at(p: RingParams, theta):
     return dofs, n
 
 
-@jax.jit
 def ring_interpolation(p: RingParams, theta):
     """Dense rows ``a(theta)`` (3 x 3L) of the global shape-function matrix (Eqs. 6.4, 6.15).
 
@@ -297,7 +300,6 @@ def ring_interpolation(p: RingParams, theta):
     return jnp.zeros((3, p.n_dof), dtype=n.dtype).at[:, dofs].add(n)
 
 
-@jax.jit
 def ring_load_vector(p: RingParams, theta, f_radial, f_tangential):
     """Global nodal force vector (3L,) [N, N, N m] of a point load at angle ``theta`` [rad].
 
@@ -312,7 +314,6 @@ def ring_load_vector(p: RingParams, theta, f_radial, f_tangential):
     return jnp.zeros((p.n_dof,), dtype=loc.dtype).at[dofs].add(loc)
 
 
-@jax.jit
 def ring_displacement_at(p: RingParams, theta, u):
     """(u_r, u_tau, u_theta) [m, m, rad] of the rim at angle ``theta`` from nodal DOFs ``u`` (3L,)."""
     dofs, n = ring_shape_at(p, theta)
@@ -377,11 +378,11 @@ def natural_frequencies(M, K):
     a = 0.5 * (a + a.T)
     lam, y = jnp.linalg.eigh(a)
     x = jax.scipy.linalg.solve_triangular(c.T, y, lower=False)
-    w = jnp.sqrt(jnp.clip(lam, 0.0, None))
+    pos = lam > 0.0
+    w = jnp.where(pos, jnp.sqrt(jnp.where(pos, lam, 1.0)), 0.0)  # NaN-free gradient at lam <= 0
     return w / (2.0 * math.pi), x
 
 
-@jax.jit
 def ring_natural_frequencies(p: RingParams):
     """:func:`natural_frequencies` of :func:`ring_matrices` ``(p)``: ``(f [Hz], modes)``."""
     M, K = ring_matrices(p)

@@ -1,0 +1,86 @@
+"""Publication-style figures shared by the studies (matplotlib, Agg backend; PNG at 200 dpi)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+STYLE = {
+    "font.size": 9, "axes.labelsize": 9, "axes.titlesize": 9, "legend.fontsize": 8, "lines.linewidth": 1.2,
+    "axes.grid": True, "grid.alpha": 0.3, "figure.dpi": 100, "savefig.dpi": 200, "savefig.bbox": "tight",
+}
+LINESTYLES = {"MC": dict(color="k", lw=1.6), "SL force": dict(color="tab:blue", ls="--"),
+              "SL energy": dict(color="tab:red", ls=":"), "SL energy_origin": dict(color="tab:green", ls="-.")}
+
+_SCALE = {"m": (1e6, "µm"), "rad": (1.0, "rad"), "N": (1e-3, "kN"), "m/s": (1e3, "mm/s")}
+
+
+def scaled(unit: str):
+    """(factor, display unit) for plotting SI quantities at a readable scale."""
+    return _SCALE.get(unit, (1.0, unit))
+
+
+def mean_std_figure(times, curves: dict, quantities: list[tuple[str, str]], title: str = ""):
+    """One column per quantity, rows = mean and standard deviation.
+
+    ``curves[label][quantity] = (mean array, std array)``; ``quantities`` = [(name, unit)].
+    """
+    with plt.rc_context(STYLE):
+        fig, axes = plt.subplots(2, len(quantities), figsize=(2.6 * len(quantities) + 0.6, 4.4), squeeze=False,
+                                 sharex=True)
+        t_ms = np.asarray(times) * 1e3
+        for j, (name, unit) in enumerate(quantities):
+            factor, shown = scaled(unit)
+            for label, data in curves.items():
+                mean, std = data[name]
+                style = LINESTYLES.get(label, {})
+                axes[0, j].plot(t_ms, np.asarray(mean) * factor, label=label, **style)
+                axes[1, j].plot(t_ms, np.asarray(std) * factor, label=label, **style)
+            axes[0, j].set_title(name)
+            axes[0, j].set_ylabel(f"mean ({shown})")
+            axes[1, j].set_ylabel(f"std ({shown})")
+            axes[1, j].set_xlabel("time (ms)")
+        axes[0, 0].legend(loc="best")
+        if title:
+            fig.suptitle(title)
+        fig.tight_layout()
+    return fig
+
+
+def pdf_figure(edges, counts, n_samples, gaussians: dict, clearance=None, unit="m", title=""):
+    """MC histogram as a density against Gaussian densities ``{label: (mean, std)}``; shaded backlash zone."""
+    factor, shown = scaled(unit)
+    edges = np.asarray(edges) * factor
+    width = np.diff(edges)
+    density = np.asarray(counts) / (n_samples * width)
+    x = np.linspace(edges[0], edges[-1], 600)
+    with plt.rc_context(STYLE):
+        fig, ax = plt.subplots(figsize=(4.2, 3.0))
+        ax.stairs(density, edges, fill=True, color="0.8", label="MC histogram")
+        ax.stairs(density, edges, color="k", lw=0.8)
+        for label, (mu, sd) in gaussians.items():
+            mu, sd = mu * factor, max(sd * factor, 1e-300)
+            ax.plot(x, np.exp(-0.5 * ((x - mu) / sd) ** 2) / (sd * np.sqrt(2 * np.pi)), label=label,
+                    **{k: v for k, v in LINESTYLES.get(label, {}).items() if k != "lw"})
+        if clearance is not None:
+            b = clearance * factor
+            ax.axvspan(-b, b, color="tab:orange", alpha=0.15, label="backlash zone")
+        ax.set_xlabel(f"mesh deflection ({shown})")
+        ax.set_ylabel(f"probability density (1/{shown})")
+        ax.legend(loc="best")
+        if title:
+            ax.set_title(title)
+        fig.tight_layout()
+    return fig
+
+
+def save(fig, path) -> Path:
+    path = Path(path)
+    fig.savefig(path)
+    plt.close(fig)
+    return path
