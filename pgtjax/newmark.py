@@ -14,7 +14,7 @@ The damping term is integrated exactly (``int C u' dt = C (u1 - u0)``), as in Eq
 gives the classic effective-stiffness form
 
     K_eff u1 + G1 f(G1^T u1) = E u0 + D v0 + F0 + F1 - G0 f0 + B_N N + B_P P
-    K_eff = K1 + (2/h) C_m + (4/h^2) M,   E = (4/h^2) M + (2/h) C_m - K0,   D = (4/h) M
+    K_eff = K1 + (2/h) C_m + (4/h^2) M,  (B_s, if time-varying, is the mean of its end values)   E = (4/h^2) M + (2/h) C_m - K0,   D = (4/h) M
     B_N = (2/sqrt(h)) B_s,   B_P = (4/sqrt(12 h)) B_s
     v1 = (2/h)(u1 - u0) - v0 - (2 sqrt(h)/sqrt(12)) M^-1 B_s P
 
@@ -58,6 +58,7 @@ class Snapshot(NamedTuple):
     load: jax.Array  # (n,)
     direction: jax.Array  # (n, nc)
     contact_stiffness: jax.Array  # (nc,)
+    noise_input: jax.Array  # B diag(sqrt(2 pi S0)), (n, n_noise)
 
 
 def snapshot(system: System, t) -> Snapshot:
@@ -67,6 +68,7 @@ def snapshot(system: System, t) -> Snapshot:
         at_time(system.load, t),
         system.contact_direction(t),
         system.contact_stiffness(t),
+        system.scaled_noise_input(t),
     )
 
 
@@ -86,7 +88,7 @@ def step_matrices(system: System, s0: Snapshot, s1: Snapshot, h, noise_scheme: s
     k_eff = s1.stiffness + (2.0 / h) * c_mid + (4.0 / h**2) * M
     from_u = (4.0 / h**2) * M + (2.0 / h) * c_mid - s0.stiffness
     from_v = (4.0 / h) * M
-    b_s = system.scaled_noise_input()
+    b_s = 0.5 * (s0.noise_input + s1.noise_input)  # B at mid-step (exact for constant B)
     b_n = (2.0 / jnp.sqrt(h)) * b_s
     if noise_scheme == "newmark":
         root12 = jnp.sqrt(12.0)

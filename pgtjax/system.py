@@ -4,7 +4,8 @@
 
 with ``E[w_i(t) w_i(t + tau)] = 2 pi S0_i delta(tau)`` (the thesis's convention, Eqs. 4.19-4.20), and contacts
 ``j`` acting along directions ``g_j(t)`` with a contact law ``f_j`` (backlash, Eq. 3.32) of stiffness
-``k_j(t)`` and half-clearance ``b_j``.
+``k_j(t)`` and half-clearance ``b_j``. The noise input ``B`` may depend on time too (random *moving* loads,
+thesis ch. 6); over a step the mean of its end values is used.
 
 Time dependence: ``C``, ``K``, ``F``, the contact directions and stiffnesses are each either an array or a
 callable ``t -> array``. Use an ``equinox.Module`` with a ``__call__`` (e.g. :class:`FourierSeries`) for a
@@ -106,7 +107,7 @@ class System(eqx.Module):
     damping: ArrayOrFunction
     stiffness: ArrayOrFunction
     load: ArrayOrFunction
-    noise_input: jax.Array
+    noise_input: ArrayOrFunction
     spectral_density: jax.Array
     contacts: Contacts | None
     dof_names: tuple[str, ...] = eqx.field(static=True)
@@ -130,10 +131,13 @@ class System(eqx.Module):
         self.stiffness = as_field(stiffness)
         self.damping = as_field(jnp.zeros((n, n)) if damping is None else damping)
         self.load = as_field(jnp.zeros(n) if load is None else load)
-        self.noise_input = jnp.asarray(jnp.zeros((n, 0)) if noise_input is None else noise_input, jnp.float64)
-        if self.noise_input.ndim == 1:
-            self.noise_input = self.noise_input[:, None]
-        m = self.noise_input.shape[1]
+        if callable(noise_input):
+            self.noise_input = noise_input
+            m = jnp.shape(noise_input(jnp.zeros((), jnp.float64)))[1]
+        else:
+            b = jnp.asarray(jnp.zeros((n, 0)) if noise_input is None else noise_input, jnp.float64)
+            self.noise_input = b[:, None] if b.ndim == 1 else b
+            m = self.noise_input.shape[1]
         self.spectral_density = jnp.broadcast_to(jnp.asarray(spectral_density, dtype=jnp.float64), (m,))
         self.contacts = contacts
         self.dof_names = tuple(dof_names) if dof_names is not None else tuple(f"q{i}" for i in range(n))
@@ -149,7 +153,7 @@ class System(eqx.Module):
 
     @property
     def n_noise(self) -> int:
-        return self.noise_input.shape[1]
+        return self.spectral_density.shape[0]
 
     def contact_direction(self, t) -> jax.Array:
         if self.contacts is None:
@@ -164,9 +168,9 @@ class System(eqx.Module):
     def contact_clearance(self) -> jax.Array:
         return jnp.zeros((0,)) if self.contacts is None else self.contacts.clearance
 
-    def scaled_noise_input(self) -> jax.Array:
-        """B diag(sqrt(2 pi S0)): the matrix multiplying unit Wiener increments (N / sqrt(s))."""
-        return self.noise_input * jnp.sqrt(2.0 * jnp.pi * self.spectral_density)[None, :]
+    def scaled_noise_input(self, t) -> jax.Array:
+        """B(t) diag(sqrt(2 pi S0)): the matrix multiplying unit Wiener increments (N / sqrt(s))."""
+        return at_time(self.noise_input, t) * jnp.sqrt(2.0 * jnp.pi * self.spectral_density)[None, :]
 
     def contact_names(self) -> tuple[str, ...]:
         return () if self.contacts is None else self.contacts.names
@@ -223,9 +227,10 @@ def validate_system(system: System, t0: float = 0.0) -> None:
         value = at_time(field, jnp.asarray(t0, dtype=jnp.float64))
         _check_shape(name, value, shape)
         _check_finite(name, value)
-    if system.noise_input.shape[0] != n:
-        raise ValueError(f"`noise_input` must have {n} rows (one per DOF), got shape {system.noise_input.shape}")
-    _check_finite("noise_input", system.noise_input)
+    b = at_time(system.noise_input, jnp.asarray(t0, dtype=jnp.float64))
+    if jnp.ndim(b) != 2 or jnp.shape(b)[0] != n:
+        raise ValueError(f"`noise_input` must have shape ({n}, n_noise) (one row per DOF), got {jnp.shape(b)}")
+    _check_finite("noise_input", b)
     _check_finite("spectral_density", system.spectral_density)
     if _is_concrete(system.spectral_density) and bool(jnp.any(system.spectral_density < 0.0)):
         raise ValueError("`spectral_density` must be >= 0")

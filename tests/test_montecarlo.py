@@ -13,11 +13,13 @@ KEY = jax.random.key(20261121)
 
 
 def time_varying_system():
-    """2-DOF chain whose coupling spring is a b = 0 contact with a time-varying stiffness (Eq. 4.11 form)."""
+    """2-DOF chain whose coupling spring is a b = 0 contact with a time-varying stiffness (Eq. 4.11 form),
+    a time-varying load and a time-varying noise input."""
     stiff = pg.FourierSeries(mean=[400.0], sin_coefficients=[[80.0]], cos_coefficients=[[30.0]], frequency=9.0)
     return pg.System(
         mass=np.diag([1.0, 1.5]), stiffness=np.diag([200.0, 100.0]), damping=np.array([[2.0, -0.5], [-0.5, 1.5]]),
-        load=lambda t: jnp.array([5.0, 0.0]) * jnp.sin(3.0 * t), noise_input=np.array([[1.0], [0.5]]),
+        load=lambda t: jnp.array([5.0, 0.0]) * jnp.sin(3.0 * t),
+        noise_input=lambda t: jnp.array([[1.0], [0.5]]) * (1.0 + 0.5 * jnp.sin(4.0 * t)),  # moving noise input
         spectral_density=0.3, contacts=pg.Contacts(direction=[[1.0], [-1.0]], stiffness=stiff, clearance=[0.0],
                                                    names=["coupling"]),
         dof_names=["x1", "x2"],

@@ -168,6 +168,21 @@ def histogram_shape(reg: RegimeResult, time_index: int = 0) -> dict:
     )
 
 
+def ks_distance(reg: RegimeResult, criterion: str = "force", time_index: int = 0) -> dict:
+    """Kolmogorov-Smirnov distance between the MC distribution of delta (histogram CDF at the bin edges) and
+    the SL Gaussian at the same time, with the 5 % critical value 1.36/sqrt(N) of a sample of size N."""
+    from scipy.stats import norm
+
+    edges = np.asarray(reg.mc.histogram_edges["delta:mesh"])
+    counts = np.asarray(reg.mc.histograms["delta:mesh"][time_index])
+    t_hist = float(reg.mc.histogram_times[time_index])
+    sl = reg.sl[criterion]
+    k = int(np.argmin(np.abs(np.asarray(sl.times) - t_hist)))
+    cdf_mc = np.concatenate([[0.0], np.cumsum(counts)]) / reg.mc.n_samples
+    cdf_sl = norm.cdf(edges, float(sl.mean_delta[k, 0]), max(float(sl.std_delta[k, 0]), 1e-300))
+    return dict(ks=float(np.max(np.abs(cdf_mc - cdf_sl))), critical_5pct=1.36 / np.sqrt(reg.mc.n_samples))
+
+
 def write_outputs(study: GearPairStudy, outdir) -> list[Path]:
     """Save labelled results (``.npz``), the error table (JSON) and PNG figures into ``outdir``."""
     outdir = Path(outdir)
@@ -195,7 +210,9 @@ def write_outputs(study: GearPairStudy, outdir) -> list[Path]:
                 written.append(plots.save(fig, outdir / f"{reg.name}_pdf_t{t * 1e3:.0f}ms.png"))
     summary = dict(dt_s=study.dt, t_end_s=study.t_end, n_samples=study.n_samples, settings=study.settings,
                    errors=error_table(study),
-                   histogram_shape={r.name: histogram_shape(r) for r in study.regimes if r.mc is not None and r.mc.histograms})
+                   histogram_shape={r.name: histogram_shape(r) for r in study.regimes if r.mc is not None and r.mc.histograms},
+                   ks_against_sl={r.name: {c: ks_distance(r, c) for c in r.sl}
+                                  for r in study.regimes if r.mc is not None and r.mc.histograms})
     path = outdir / "summary.json"
     path.write_text(json.dumps(summary, indent=2))
     written.append(path)
