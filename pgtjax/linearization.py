@@ -14,13 +14,14 @@ the mean and the covariance separately (equivalent, better conditioned):
 The step's fixed point ``(mu, sigma) = T(mu, sigma)`` of the contact deflections is solved by Newton's method
 (Jacobian by forward-mode autodiff; falls back to a plain fixed-point step when a Newton step is not finite).
 Only the contact-space moments are iterated (``W Y W^T`` with ``W = G^T K_eff^-1``), the full covariance update
-is done once per step. Gradients through the converged fixed point use the implicit function theorem: one
-Newton correction with a stopped Jacobian, ``z = z* - J^-1 R(z*, theta)``, whose value is ``z*`` and whose
-derivative is ``-J^-1 dR/dtheta``; the iterations themselves are not differentiated.
+is done once per step. Gradients through the converged fixed point use the implicit function theorem
+(a ``custom_jvp`` whose tangent is ``-J^-1 dR/dtheta``; reverse mode transposes it); the iterations themselves
+are not differentiated and cost nothing extra in a forward run.
 """
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import equinox as eqx
@@ -50,11 +51,10 @@ def _safe_sqrt(x):
     return jnp.where(positive, jnp.sqrt(jnp.where(positive, x, 1.0)), 0.0)
 
 
-def _contact_moments(system: System, z, data: _StepData, criterion: str):
+def _contact_moments(law, nc: int, criterion: str, z, data: _StepData):
     """The fixed-point map T: step-end contact moments implied by linearizing at ``z = (mu, sigma)``."""
-    nc = system.n_contacts
     mu, sigma = z[:nc], z[nc:]
-    lin = system.contacts.law.linearize(mu, sigma, data.contact_stiffness, data.clearance, criterion)
+    lin = law.linearize(mu, sigma, data.contact_stiffness, data.clearance, criterion)
     g = data.direction
     k_eff = data.k_eff_base + (g * lin.k_e[None, :]) @ g.T
     w = jnp.linalg.solve(k_eff.T, g).T  # G^T K_eff^-1, (nc, n)
@@ -63,44 +63,64 @@ def _contact_moments(system: System, z, data: _StepData, criterion: str):
     return jnp.concatenate([mean, _safe_sqrt(var)])
 
 
+def _residual(law, nc, criterion, z, data):
+    return _contact_moments(law, nc, criterion, z, data) - z
+
+
 class _FixedPointInfo(NamedTuple):
     iterations: jax.Array
     residual: jax.Array
     converged: jax.Array
 
 
-def _solve_fixed_point(system, z0, data, criterion, rtol, max_iter):
-    nc = system.n_contacts
-    data_const = jax.lax.stop_gradient(data)
+@functools.partial(jax.custom_jvp, nondiff_argnums=(0, 1, 2))
+def _implicit_solution(law, nc, criterion, z_star, data):
+    """Identity on the converged fixed point ``z*``; its derivative is the implicit-function-theorem one,
+    ``dz = -J^-1 (dR/ddata) ddata`` with ``J = dR/dz`` at ``z*`` (computed only when differentiating)."""
+    return z_star
 
-    def residual(z, d):
-        return _contact_moments(system, z, d, criterion) - z
+
+@_implicit_solution.defjvp
+def _implicit_solution_jvp(law, nc, criterion, primals, tangents):
+    z_star, data = primals
+    _, d_data = tangents
+    jac = jax.jacfwd(lambda z: _residual(law, nc, criterion, z, data))(z_star)
+    _, d_res = jax.jvp(lambda d: _residual(law, nc, criterion, z_star, d), (data,), (d_data,))
+    return z_star, -jnp.linalg.solve(jac, d_res)
+
+
+def _solve_fixed_point(system, z0, data, criterion, rtol, max_iter):
+    """Newton iterations on R(z) = T(z) - z (one linearization per iteration, residual reused)."""
+    nc = system.n_contacts
+    law = system.contacts.law
+    data_const = jax.lax.stop_gradient(data)
+    eye = jnp.eye(2 * nc, dtype=z0.dtype)
+
+    def residual_and_jacobian(z):
+        r, jvp = jax.linearize(lambda zz: _residual(law, nc, criterion, zz, data_const), z)
+        return r, jax.vmap(jvp, out_axes=1)(eye)
 
     def scaled_norm(r, z):
         scale = jnp.abs(z[:nc]) + z[nc:] + data_const.clearance + 1e-300
         return jnp.max(jnp.abs(r) / jnp.concatenate([scale, scale]))
 
     def body(state):
-        z, it, _ = state
-        r, jac = jax.linearize(lambda zz: residual(zz, data_const), z)
-        jmat = jax.vmap(jac, out_axes=1)(jnp.eye(2 * nc, dtype=z.dtype))
-        z_newton = z + jnp.linalg.solve(jmat, -r)
-        ok = jnp.all(jnp.isfinite(z_newton))
-        z_new = jnp.where(ok, z_newton, z + r)
+        z, r, jac, it, _ = state
+        z_newton = z + jnp.linalg.solve(jac, -r)
+        z_new = jnp.where(jnp.all(jnp.isfinite(z_newton)), z_newton, z + r)  # fixed-point step as fallback
         z_new = z_new.at[nc:].set(jnp.maximum(z_new[nc:], 0.0))
-        return z_new, it + 1, scaled_norm(residual(z_new, data_const), z_new)
+        r_new, jac_new = residual_and_jacobian(z_new)
+        return z_new, r_new, jac_new, it + 1, scaled_norm(r_new, z_new)
 
     def cond(state):
-        _, it, res = state
-        return (it < max_iter) & (res > rtol)
+        *_, it, err = state
+        return (it < max_iter) & (err > rtol)
 
     z0 = jax.lax.stop_gradient(z0)
-    res0 = scaled_norm(residual(z0, data_const), z0)
-    z_star, iters, res = jax.lax.while_loop(cond, body, (z0, jnp.array(0), res0))
-    # Implicit-function-theorem correction: value z*, derivative -J^-1 dR/dtheta.
-    jac_star = jax.jacfwd(lambda zz: residual(zz, data_const))(z_star)
-    z = z_star - jnp.linalg.solve(jax.lax.stop_gradient(jac_star), residual(z_star, data))
-    return z, _FixedPointInfo(iters, res, res <= rtol)
+    r0, jac0 = residual_and_jacobian(z0)
+    z_star, _, _, iters, err = jax.lax.while_loop(cond, body, (z0, r0, jac0, jnp.array(0), scaled_norm(r0, z0)))
+    z = _implicit_solution(law, nc, criterion, z_star, data)
+    return z, _FixedPointInfo(iters, err, err <= rtol)
 
 
 class _Carry(NamedTuple):

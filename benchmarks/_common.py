@@ -1,0 +1,50 @@
+"""Shared helpers of the benchmark scripts: machine description, timing, JSON output."""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import statistics
+import time
+from pathlib import Path
+
+import jax
+
+RESULTS = Path(__file__).parent / "results"
+
+
+def machine() -> dict:
+    """What the figures were measured on."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as fh:
+            names = [line.split(":", 1)[1].strip() for line in fh if line.startswith("model name")]
+        cpu = names[0] if names else cpu
+    except OSError:
+        pass
+    return dict(
+        platform=platform.platform(), python=platform.python_version(), cpu=cpu, cpu_count=os.cpu_count(),
+        jax=jax.__version__, backend=jax.default_backend(), devices=[str(d) for d in jax.devices()],
+    )
+
+
+def timed(fn, *args, repeats: int = 3, **kwargs):
+    """(first-call seconds incl. compilation, median seconds of `repeats` further calls, all times, result)."""
+    t = time.perf_counter()
+    out = jax.block_until_ready(fn(*args, **kwargs))
+    first = time.perf_counter() - t
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        out = jax.block_until_ready(fn(*args, **kwargs))
+        times.append(time.perf_counter() - t)
+    return first, statistics.median(times), times, out
+
+
+def write(name: str, payload: dict) -> Path:
+    RESULTS.mkdir(exist_ok=True)
+    path = RESULTS / f"{name}.json"
+    payload = dict(machine=machine(), date=time.strftime("%Y-%m-%d %H:%M:%S"), **payload)
+    path.write_text(json.dumps(payload, indent=2))
+    return path
