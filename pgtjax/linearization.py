@@ -13,8 +13,9 @@ the mean and the covariance separately (equivalent, better conditioned):
 
 The step's fixed point ``(mu, sigma) = T(mu, sigma)`` of the contact deflections is solved by Newton's method
 (Jacobian by forward-mode autodiff; falls back to a plain fixed-point step when a Newton step is not finite).
-Only the contact-space moments are iterated (``W Y W^T`` with ``W = G^T K_eff^-1``), the full covariance update
-is done once per step. Gradients through the converged fixed point use the implicit function theorem
+Only the contact-space moments are iterated, by nc x nc algebra (push-through identity, see
+``_contact_moments``); the full covariance update is done once per step with one LU of the contact-free
+``K_eff`` and a Woodbury correction for the linearized contacts. Gradients through the converged fixed point use the implicit function theorem
 (a ``custom_jvp`` whose tangent is ``-J^-1 dR/dtheta``; reverse mode transposes it); the iterations themselves
 are not differentiated and cost nothing extra in a forward run.
 """
@@ -36,12 +37,15 @@ from .system import System, validate_system, validate_time_grid
 
 
 class _StepData(NamedTuple):
-    """Quantities of one step that do not depend on the step-end linearization."""
+    """Contact-space quantities of one step that do not depend on the step-end linearization.
 
-    k_eff_base: jax.Array
-    mean_rhs: jax.Array  # E m_u + D m_v + F0_lin + F1
-    rhs_covariance: jax.Array  # [E D] P [E D]^T + noise
-    direction: jax.Array
+    With ``A`` = K_eff without the contacts and ``W0 = G^T A^-1``: ``coupling`` S = W0 G, ``mean`` W0 r
+    (r = the mean right-hand side without contact terms), ``covariance`` W0 (Y + N N^T) W0^T.
+    """
+
+    coupling: jax.Array  # (nc, nc)
+    mean: jax.Array  # (nc,)
+    covariance: jax.Array  # (nc, nc)
     contact_stiffness: jax.Array
     clearance: jax.Array
 
@@ -52,15 +56,17 @@ def _safe_sqrt(x):
 
 
 def _contact_moments(law, nc: int, criterion: str, z, data: _StepData):
-    """The fixed-point map T: step-end contact moments implied by linearizing at ``z = (mu, sigma)``."""
+    """The fixed-point map T: step-end contact moments implied by linearizing at ``z = (mu, sigma)``.
+
+    ``G^T (A + G K_e G^T)^-1 = (I + S K_e)^-1 G^T A^-1`` (push-through identity), so the map needs only
+    contact-space (nc x nc) algebra.
+    """
     mu, sigma = z[:nc], z[nc:]
     lin = law.linearize(mu, sigma, data.contact_stiffness, data.clearance, criterion)
-    g = data.direction
-    k_eff = data.k_eff_base + (g * lin.k_e[None, :]) @ g.T
-    w = jnp.linalg.solve(k_eff.T, g).T  # G^T K_eff^-1, (nc, n)
-    mean = w @ (data.mean_rhs - g @ (lin.f_0 - lin.k_e * mu))
-    var = jnp.sum((w @ data.rhs_covariance) * w, axis=1)
-    return jnp.concatenate([mean, _safe_sqrt(var)])
+    reduced = jnp.eye(nc, dtype=z.dtype) + data.coupling * lin.k_e[None, :]
+    mean = jnp.linalg.solve(reduced, data.mean - data.coupling @ (lin.f_0 - lin.k_e * mu))
+    cov = jnp.linalg.solve(reduced, jnp.linalg.solve(reduced, data.covariance).T)
+    return jnp.concatenate([mean, _safe_sqrt(jnp.diagonal(cov))])
 
 
 def _residual(law, nc, criterion, z, data):
@@ -189,36 +195,58 @@ def _record(system, carry: _Carry, criterion, info: _FixedPointInfo) -> _Saved:
 
 
 def _moment_step(system: System, carry: _Carry, t1, h, criterion, noise_scheme, rtol, max_iter):
+    """One step of the recursion. The covariance update ``Phi P Phi^T + Gamma Gamma^T`` is done blockwise
+    from ``Z = [E D] P`` and ``A = K_eff^-1 Z`` (Phi itself is never formed): with ``X_u = K_eff^-1 [E D]``
+    the displacement rows of Phi, ``X_u P = A``, ``X_u P X_u^T = K_eff^-1 Z [E D]^T K_eff^-T`` and the velocity
+    rows ``Phi_v = (2/h) X_u - W``, ``W = [(2/h) I, I]``, follow by the algebra spelled out below."""
     n, nc = system.n_dof, system.n_contacts
     s0, mean, cov = carry.snap, carry.mean, carry.cov
     s1 = snapshot(system, t1)
     k0_lin, f0_lin, _ = _linearized_terms(system, s0, carry.z, criterion)
     mats = step_matrices(system, s0._replace(stiffness=k0_lin), s1, h, noise_scheme)
-    x_mat = jnp.concatenate([mats.from_displacement, mats.from_velocity], axis=1)  # (n, 2n)
-    mean_rhs = x_mat @ mean + f0_lin + s1.load
-    rhs_cov = x_mat @ cov @ x_mat.T + mats.noise @ mats.noise.T
+    e_mat, d_mat = mats.from_displacement, mats.from_velocity
+    p_top, p_bot = cov[:n, :], cov[n:, :]
+    z_mat = e_mat @ p_top + d_mat @ p_bot  # [E D] P, (n, 2n)
+    y_mat = z_mat[:, :n] @ e_mat.T + z_mat[:, n:] @ d_mat.T  # [E D] P [E D]^T, (n, n)
+    mean_rhs = e_mat @ mean[:n] + d_mat @ mean[n:] + f0_lin + s1.load
+    noise_cov = mats.noise @ mats.noise.T
+    lu = jax.scipy.linalg.lu_factor(mats.effective_stiffness)  # A: K_eff without the contacts
+    solve_a = lambda rhs: jax.scipy.linalg.lu_solve(lu, rhs)  # noqa: E731
+    solve = solve_a
     if nc:
-        data = _StepData(
-            mats.effective_stiffness, mean_rhs, rhs_cov, s1.direction, s1.contact_stiffness,
-            system.contacts.clearance,
-        )
+        g1 = s1.direction
+        w0 = jax.scipy.linalg.lu_solve(lu, g1, trans=1).T  # G^T A^-1, (nc, n)
+        v0 = solve_a(g1)  # A^-1 G, (n, nc)
+        coupling = w0 @ g1
+        data = _StepData(coupling, w0 @ mean_rhs, w0 @ (y_mat + noise_cov) @ w0.T, s1.contact_stiffness,
+                         system.contacts.clearance)
         z1, info = _solve_fixed_point(system, carry.z, data, criterion, rtol, max_iter)
-        k1_lin, f1_lin, _ = _linearized_terms(system, s1, z1, criterion)
+        k1_lin, f1_lin, lin1 = _linearized_terms(system, s1, z1, criterion)
         mean_rhs = mean_rhs - s1.load + f1_lin
-        k_eff = mats.effective_stiffness - s1.stiffness + k1_lin
+        ke = lin1.k_e
+        reduced = jnp.eye(nc, dtype=ke.dtype) + ke[:, None] * coupling  # I + K_e S
+
+        def solve(rhs):  # Woodbury: (A + G K_e G^T)^-1 = A^-1 - A^-1 G (I + K_e S)^-1 K_e G^T A^-1
+            r2 = rhs if rhs.ndim == 2 else rhs[:, None]
+            out = solve_a(r2) - v0 @ jnp.linalg.solve(reduced, ke[:, None] * (w0 @ r2))
+            return out if rhs.ndim == 2 else out[:, 0]
     else:
         z1 = carry.z
         info = _FixedPointInfo(jnp.array(0), jnp.array(0.0), jnp.array(True))
-        k_eff = mats.effective_stiffness
-    blocks = jnp.linalg.solve(k_eff, jnp.concatenate([mean_rhs[:, None], x_mat, mats.noise], axis=1))
-    u_mean, phi_u, gamma_u = blocks[:, 0], blocks[:, 1 : 2 * n + 1], blocks[:, 2 * n + 1 :]
-    eye_u = jnp.eye(n, 2 * n, dtype=mean.dtype)
-    eye_v = jnp.eye(n, 2 * n, k=n, dtype=mean.dtype)
-    phi = jnp.concatenate([phi_u, (2.0 / h) * (phi_u - eye_u) - eye_v], axis=0)
-    gamma = jnp.concatenate([gamma_u, (2.0 / h) * gamma_u + mats.velocity_noise], axis=0)
-    new_mean = jnp.concatenate([u_mean, (2.0 / h) * (u_mean - mean[:n]) - mean[n:]])
-    new_cov = phi @ cov @ phi.T + gamma @ gamma.T
+    u_mean = solve(mean_rhs)
+    a_mat = solve(z_mat)  # X_u P, (n, 2n)
+    u_cov = solve(solve(y_mat.T).T)  # X_u P X_u^T
+    g_u = solve(mats.noise)  # Gamma_u, (n, draws)
+    g_v = (2.0 / h) * g_u + mats.velocity_noise  # Gamma_v
+    a_u, a_v = a_mat[:, :n], a_mat[:, n:]  # X_u P[:, :n], X_u P[:, n:]
+    xpw = (2.0 / h) * a_u + a_v  # X_u P W^T
+    wpw = (4.0 / h**2) * cov[:n, :n] + (2.0 / h) * (cov[:n, n:] + cov[n:, :n]) + cov[n:, n:]
+    p_uu = u_cov + g_u @ g_u.T
+    p_vu = (2.0 / h) * u_cov - xpw.T + g_v @ g_u.T  # Phi_v P Phi_u^T + Gamma_v Gamma_u^T
+    p_vv = (4.0 / h**2) * u_cov - (2.0 / h) * (xpw + xpw.T) + wpw + g_v @ g_v.T
+    new_cov = jnp.block([[p_uu, p_vu.T], [p_vu, p_vv]])
     new_cov = 0.5 * (new_cov + new_cov.T)
+    new_mean = jnp.concatenate([u_mean, (2.0 / h) * (u_mean - mean[:n]) - mean[n:]])
     return _Carry(new_mean, new_cov, s1, z1), info
 
 
