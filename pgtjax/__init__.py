@@ -8,7 +8,7 @@ Studies, plots and the CLI sit on top.
 
 from . import _config  # noqa: F401  (enables float64 before anything else)
 from .contact import Backlash as Backlash, ContactLaw as ContactLaw, Linearization as Linearization
-from .deterministic import simulate as simulate
+from .deterministic import simulate as simulate, static_equilibrium as static_equilibrium
 from .linearization import solve_moments as solve_moments
 from .modal import Modes as Modes, modal_analysis as modal_analysis
 from .montecarlo import monte_carlo as monte_carlo, quantity_names as quantity_names

@@ -47,6 +47,8 @@ import equinox as eqx
 import jax.numpy as jnp
 from jax.scipy.special import erfc
 
+from ._numerics import safe_sqrt
+
 _SQRT2 = 1.4142135623730951
 _INV_SQRT_2PI = 0.3989422804014327
 _Z_SATURATION = 40.0
@@ -174,7 +176,7 @@ class Backlash(ContactLaw):
         var = _positive_part_variance(upper, sigma, z_up) + _positive_part_variance(lower, sigma, z_lo)
         # A = (delta-b)+ and B = (-b-delta)+ are never both nonzero: Cov(A, B) = -E[A] E[B].
         var = var + 2.0 * mean_up * mean_lo
-        return k * (mean_up - mean_lo), k * jnp.sqrt(jnp.maximum(var, 0.0))
+        return k * (mean_up - mean_lo), k * safe_sqrt(var)
 
 
 def _positive_part_variance(offset, sigma, z):

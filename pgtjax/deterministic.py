@@ -68,3 +68,50 @@ def _simulate_jit(system, t0, dt, u0, v0, *, n_steps, save_every):
         contact_names=system.contact_names(), u=saved[0], v=saved[1], delta=saved[2], force=saved[3],
         unconverged=bad,
     )
+
+
+def static_equilibrium(system: System, t: float = 0.0, *, tol: float = 1e-12, max_iter: int = 100):
+    """Solve ``K u + G f(G^T u) = F`` at time ``t`` by Newton's method (the deterministic static state;
+    velocities zero). Starts from the solution with every contact closed at its stiffness. Raises
+    ``RuntimeError`` if Newton does not converge (e.g. a mechanism held only by open contacts). The start
+    closes each contact on the flank the load pushes it to (``f = k (delta - b sign delta)``)."""
+    validate_system(system, t)
+    u, converged, iterations = _static_jit(system, jnp.asarray(t, jnp.float64), tol, max_iter)
+    if not bool(converged):
+        raise RuntimeError(f"static equilibrium: Newton did not converge in {int(iterations)} iterations")
+    return u
+
+
+@eqx.filter_jit
+def _static_jit(system, t, tol, max_iter):
+    from .newmark import snapshot as _snapshot
+
+    snap = _snapshot(system, t)
+    k, f, g = snap.stiffness, snap.load, snap.direction
+    kc, b = snap.contact_stiffness, system.contact_clearance()
+    law = system.contacts.law if system.n_contacts else None
+
+    def residual(u):
+        r = k @ u - f
+        return r + g @ law.force(g.T @ u, kc, b) if law is not None else r
+
+    def jacobian(u):
+        return k + (g * law.stiffness(g.T @ u, kc, b)[None, :]) @ g.T if law is not None else k
+
+    closed = k + (g * kc[None, :]) @ g.T
+    u0 = jnp.linalg.solve(closed, f)
+    # close every contact on the flank it is pushed to, offset by the clearance: k (delta - b sign)
+    u0 = jnp.linalg.solve(closed, f + g @ (kc * b * jnp.sign(g.T @ u0)))
+    scale = jnp.max(jnp.abs(f)) + 1e-300
+
+    def body(state):
+        u, it, _ = state
+        u = u - jnp.linalg.solve(jacobian(u), residual(u))
+        return u, it + 1, jnp.max(jnp.abs(residual(u))) / scale
+
+    def cond(state):
+        _, it, err = state
+        return (it < max_iter) & (err > tol)
+
+    u, it, err = jax.lax.while_loop(cond, body, (u0, jnp.array(0), jnp.max(jnp.abs(residual(u0))) / scale))
+    return u, err <= tol, it

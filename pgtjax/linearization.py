@@ -30,6 +30,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._numerics import safe_sqrt
 from .contact import check_criterion
 from .newmark import Snapshot, check_noise_scheme, snapshot, step_matrices
 from .results import MomentResult
@@ -50,11 +51,6 @@ class _StepData(NamedTuple):
     clearance: jax.Array
 
 
-def _safe_sqrt(x):
-    positive = x > 0.0
-    return jnp.where(positive, jnp.sqrt(jnp.where(positive, x, 1.0)), 0.0)
-
-
 def _contact_moments(law, nc: int, criterion: str, z, data: _StepData):
     """The fixed-point map T: step-end contact moments implied by linearizing at ``z = (mu, sigma)``.
 
@@ -66,7 +62,7 @@ def _contact_moments(law, nc: int, criterion: str, z, data: _StepData):
     reduced = jnp.eye(nc, dtype=z.dtype) + data.coupling * lin.k_e[None, :]
     mean = jnp.linalg.solve(reduced, data.mean - data.coupling @ (lin.f_0 - lin.k_e * mu))
     cov = jnp.linalg.solve(reduced, jnp.linalg.solve(reduced, data.covariance).T)
-    return jnp.concatenate([mean, _safe_sqrt(jnp.diagonal(cov))])
+    return jnp.concatenate([mean, safe_sqrt(jnp.diagonal(cov))])
 
 
 def _residual(law, nc, criterion, z, data):
@@ -153,7 +149,7 @@ def _contact_state(system, snap: Snapshot, mean, cov):
     n = system.n_dof
     g = snap.direction
     mu = g.T @ mean[:n]
-    sigma = _safe_sqrt(jnp.sum((g.T @ cov[:n, :n]) * g.T, axis=1))
+    sigma = safe_sqrt(jnp.sum((g.T @ cov[:n, :n]) * g.T, axis=1))
     return jnp.concatenate([mu, sigma])
 
 

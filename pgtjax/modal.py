@@ -13,6 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._numerics import safe_sqrt
 from .system import System, at_time, validate_system
 
 
@@ -55,5 +56,5 @@ def modes_of(mass, stiffness, dof_names=None) -> Modes:
         lam_c, v = np.linalg.eig(np.linalg.solve(np.asarray(mass), np.asarray(stiffness)))
         order = np.argsort(lam_c.real)
         lam, shapes = jnp.asarray(lam_c.real[order]), jnp.asarray(v[:, order].real)
-    omega = jnp.sqrt(jnp.maximum(lam, 0.0))
+    omega = safe_sqrt(lam)
     return Modes(omega / (2.0 * jnp.pi), omega, shapes, names)

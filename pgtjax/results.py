@@ -15,6 +15,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._numerics import safe_sqrt
+
 
 class _Labelled(eqx.Module):
     times: jax.Array
@@ -63,7 +65,7 @@ class MomentResult(_Labelled):
     @classmethod
     def from_saved(cls, system, times, saved, *, criterion):
         n, nc = system.n_dof, system.n_contacts
-        sd = jnp.sqrt(jnp.maximum(saved.var, 0.0))
+        sd = safe_sqrt(saved.var)
         return cls(
             times=times,
             dof_names=system.dof_names,

@@ -173,3 +173,70 @@ def chapter6_ring_params(n_elements: int = 36, rotary_inertia: bool = True) -> R
         k_support_torsional=3.405e10,
         rotary_inertia=rotary_inertia,
     )
+
+
+def format_table(table: dict) -> str:
+    """Plain-text Table 5.3 comparison of :func:`ring_gear_free_vibration_table` (Hz and % difference)."""
+    lines = [f"{'n':>2s} {'Model I':>9s} {'thesis I':>9s} {'diff':>7s} {'Model II':>9s} {'thesis II':>9s} "
+             f"{'diff':>7s} {'ANSYS':>7s}"]
+    for i, n in enumerate(table["n"]):
+        lines.append(
+            f"{int(n):2d} {table['model_I'][i]:9.1f} {table['thesis_model_I'][i]:9.1f} "
+            f"{100 * table['rel_diff_I'][i]:6.1f}% {table['model_II'][i]:9.1f} {table['thesis_model_II'][i]:9.1f} "
+            f"{100 * table['rel_diff_II'][i]:6.1f}% {table['thesis_ansys'][i]:7.0f}"
+        )
+    return "\n".join(lines)
+
+
+def write_outputs(outdir, **kw) -> list:
+    """Write the Table 5.3 comparison (``table_5_3.json``) and mode-shape figures of Models I and II (the
+    deformed free rings, :func:`pgtjax.studies.ring_moving_load.mode_shape_figure`) into ``outdir``.
+    Keywords as :func:`ring_gear_free_vibration_table`."""
+    import json
+    from pathlib import Path
+
+    from .. import plots
+    from .ring_moving_load import mode_shape_figure
+
+    outdir = Path(outdir)
+    outdir.mkdir(parents=True, exist_ok=True)
+    table = ring_gear_free_vibration_table(**kw)
+    path = outdir / "table_5_3.json"
+    path.write_text(json.dumps({k: [float(v) for v in vals] for k, vals in table.items()}, indent=2))
+    written = [path]
+    for model in ("I", "II"):
+        p = table_5_1_params(model, **kw)
+        # a free ring: the 3 lowest modes are rigid-body motions; show modes 4..9 (n = 2..4 pairs)
+        fig = _elastic_mode_figure(p, f"Model {model} (free ring): lowest elastic modes")
+        written.append(plots.save(fig, outdir / f"modes_model_{model}.png"))
+    return written
+
+
+def _elastic_mode_figure(p: RingParams, title: str, n_show: int = 6, amplitude: float = 0.15):
+    import math
+
+    import jax.numpy as jnp
+
+    from .. import plots
+    from ..models.ring import natural_frequencies, ring_matrices
+    from .ring_moving_load import ring_shape_points
+
+    f, x = natural_frequencies(*ring_matrices(p))
+    f, x = np.asarray(f), np.asarray(x)
+    elastic = [k for k in range(f.size) if nodal_diameter(x[:, k]) >= 2][:n_show]
+    R = float(p.radius)
+    with plots.plt.rc_context(plots.STYLE):
+        fig, axes = plots.plt.subplots(2, 3, figsize=(7.2, 5.0))
+        for ax, k in zip(axes.ravel(), elastic):
+            u = x[:, k]
+            peak = np.max(np.abs(u.reshape(-1, 3)[:, :2]))
+            xs, ys = ring_shape_points(p, jnp.asarray(u), amplitude * R / max(peak, 1e-300))
+            th = np.linspace(0, 2 * math.pi, 200)
+            ax.plot(R * np.cos(th), R * np.sin(th), color="0.6", ls="--", lw=0.8)
+            ax.plot(xs, ys, color="tab:blue")
+            ax.set_aspect("equal")
+            ax.axis("off")
+            ax.set_title(f"{f[k]:.0f} Hz, n = {nodal_diameter(u)}")
+        fig.suptitle(title)
+        fig.tight_layout()
+    return fig

@@ -1,0 +1,575 @@
+"""Paper study (seeds/002, section 5): the back-to-back bench in a stationary regime (A) and in a run-up (B).
+
+For each regime the bench (:mod:`pgtjax.models.back_to_back`) is integrated by :func:`pgtjax.simulate`
+(average-acceleration Newmark with a Newton solve of the 12 mesh contacts per step; the paper's Eqs. 34-42 are
+the same scheme with Newton on all DOFs) from its quasi-static state, and we extract over time: the Hertzian
+stiffness of every mesh (sum over the pairs in contact of Eq. 13's secant ``F_h / delta_h``, and the tangent),
+the total mesh stiffness ``dF/d delta``, the transmission error ``delta - b`` and the mesh forces (Eq. 38), the
+ring accelerations (from the equation of motion at the saved states), the carrier speed and the motor torque;
+then short-time Fourier transforms (STFT) of the ring acceleration and of a transmission error.
+
+Why the test-ring acceleration shows ``3 f_m`` and not ``f_m``: the three planets are equally spaced and
+``Z_r / 3`` and ``Z_s / 3`` are not integers, so the planets mesh with phases 0, 1/3, 2/3 (Parker & Lin 2004);
+in a purely torsional model the ring's rotation is driven by the sum of the three ring-mesh forces, in which
+every harmonic of ``f_m`` that is not a multiple of 3 cancels. A ring-mounted accelerometer also sees the
+planets passing (amplitude modulation), which the torsional model does not describe. The fundamental ``f_m``
+is in every single mesh: the STFT of a transmission error shows it.
+
+The STFT is written with numpy (Hann window, zero padding, one-sided amplitude spectrum); the ridge of a line
+is the peak in a band around its expected frequency, refined by parabolic interpolation of the log magnitude.
+
+Comparison with the paper's mean Hertzian stiffness (1.13e9 -> 1.234e9 N/m sun-planet 1, 2.102e9 -> 2.243e9 N/m
+ring-planet 1): :func:`hertz_comparison` (quasi-static, over a mesh cycle) and the dynamic means of the regimes.
+Assumptions: face width 20 mm (= Hertz contact length), the circulating torque of each zone (the paper's Figs.
+4-5 are lost), Harsha's fit in mm and N (see :mod:`pgtjax.models.mesh_stiffness`).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .. import plots
+from ..deterministic import simulate
+from ..modal import modal_analysis
+from ..models import back_to_back as bb
+from ..models.mesh_stiffness import HARSHA_DEFLECTION_EXP
+from ..results import Trajectory, save_results
+
+PAPER_HS_SUN = (1.13e9, 1.234e9)  # N/m, mean Hertzian stiffness sun-planet 1, zone A -> end of run-up
+PAPER_HS_RING = (2.102e9, 2.243e9)  # N/m, ring-planet 1
+
+
+# ------------------------------------------------------------------------------------------------ STFT
+
+
+def stft(x, fs: float, window_s: float, hop_s: float | None = None, nfft: int | None = None):
+    """Short-time Fourier transform of a real signal (numpy).
+
+    ``x`` (n,) sampled at ``fs`` [Hz]; Hann window of ``window_s`` [s], hop ``hop_s`` [s] (default a quarter
+    window), FFT length ``nfft`` (default the next power of two >= 4 windows: zero padding for a finer grid).
+    Returns ``(times [s] of the frame centres, frequencies [Hz], amplitude (n_frames, n_freq))``; the
+    amplitude of a sinusoid of amplitude A is A at its frequency. The mean of each frame is removed.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    n_win = int(round(window_s * fs))
+    if n_win < 8 or n_win > x.size:
+        raise ValueError(
+            f"`window_s` must span between 8 samples and the signal ({x.size} samples); got {window_s!r}"
+        )
+    hop = max(int(round((hop_s if hop_s is not None else window_s / 4) * fs)), 1)
+    nfft = nfft or int(2 ** math.ceil(math.log2(4 * n_win)))
+    if nfft < n_win:
+        raise ValueError(f"`nfft` must be >= the window length ({n_win}); got {nfft}")
+    w = np.hanning(n_win)
+    starts = np.arange(0, x.size - n_win + 1, hop)
+    frames = np.stack([x[s : s + n_win] for s in starts])
+    frames = (frames - frames.mean(axis=1, keepdims=True)) * w[None, :]
+    amp = np.abs(np.fft.rfft(frames, n=nfft, axis=1)) * (2.0 / w.sum())
+    times = (starts + 0.5 * (n_win - 1)) / fs
+    return times, np.fft.rfftfreq(nfft, 1.0 / fs), amp
+
+
+def ridge(freqs, amp, expected, rel_band: float = 0.25):
+    """Peak frequency per frame [Hz] within ``expected * (1 +- rel_band)`` (parabolic refinement in log).
+
+    ``expected`` (n_frames,) [Hz] only sets the search band; the band must exclude the neighbouring harmonics
+    (``rel_band`` < 1/3 for lines at k f and (k +- 1) f with k <= 2).
+    """
+    freqs = np.asarray(freqs)
+    out = np.empty(len(expected))
+    for i, (row, fe) in enumerate(zip(np.asarray(amp), np.asarray(expected))):
+        band = np.nonzero((freqs >= fe * (1 - rel_band)) & (freqs <= fe * (1 + rel_band)))[0]
+        j = band[np.argmax(row[band])]
+        if 0 < j < len(row) - 1:
+            a, b, c = np.log(row[j - 1 : j + 2] + 1e-300)
+            shift = 0.5 * (a - c) / (a - 2 * b + c) if (a - 2 * b + c) != 0 else 0.0
+        else:
+            shift = 0.0
+        out[i] = freqs[j] + shift * (freqs[1] - freqs[0])
+    return out
+
+
+def frame_average(times, values, frame_times, window_s):
+    """Mean of ``values`` over each STFT frame (centre ``frame_times``, length ``window_s``)."""
+    times, values = np.asarray(times), np.asarray(values)
+    return np.array([values[np.abs(times - tc) <= 0.5 * window_s].mean() for tc in frame_times])
+
+
+# ------------------------------------------------------------------------------------------------ regimes
+
+
+@dataclass
+class RegimeResult:
+    """One simulated regime with its derived quantities (SI units; see :mod:`pgtjax.models.back_to_back`)."""
+
+    name: str
+    model: bb.BenchModel
+    trajectory: Trajectory
+    mesh: bb.MeshHistory
+    acceleration: np.ndarray  # (n_t, 12) m/s^2
+    carrier_frequency: np.ndarray  # (n_t,) Hz, test carrier, from the simulated velocity
+    motor_speed: np.ndarray  # (n_t,) rad/s, prescribed
+    motor_torque: np.ndarray  # (n_t,) N m
+    circulating_torque: np.ndarray  # (n_t,) N m, prescribed
+    dt: float
+    wall_s: float
+
+    @property
+    def times(self) -> np.ndarray:
+        return np.asarray(self.trajectory.times)
+
+    @property
+    def mesh_frequency(self) -> np.ndarray:
+        """Z_r f_c from the simulated carrier speed [Hz] (ERRATA Eq. 2)."""
+        return self.model.params.z_ring * self.carrier_frequency
+
+
+def run_regime(
+    params: bb.BackToBackParams,
+    name: str,
+    *,
+    t_end: float,
+    dt: float = 1e-4,
+    save_every: int = 1,
+    t0: float | None = None,
+) -> RegimeResult:
+    """Integrate the bench from its quasi-static state at ``t0`` (default half a step, so that no step lands
+    exactly on a contact entry of a commensurate mesh period) to ``t0 + t_end``."""
+    if not (np.isfinite(t_end) and t_end > 0):
+        raise ValueError(f"`t_end` must be > 0 s; got {t_end!r}")
+    if not (np.isfinite(dt) and dt > 0):
+        raise ValueError(f"`dt` must be > 0 s; got {dt!r}")
+    t0 = 0.5 * dt if t0 is None else t0
+    n_steps = int(round(t_end / dt))
+    n_steps = max(save_every * (n_steps // save_every), save_every)
+    model = bb.build(params)
+    start = time.perf_counter()
+    u0, v0 = bb.initial_state(model, t0)
+    traj = simulate(
+        model.system,
+        t0=t0,
+        dt=dt,
+        n_steps=n_steps,
+        initial_displacement=u0,
+        initial_velocity=v0,
+        save_every=save_every,
+    )
+    jax.block_until_ready(traj.u)
+    wall = time.perf_counter() - start
+    if int(traj.unconverged):
+        raise ValueError(f"{int(traj.unconverged)} contact solves did not converge; reduce `dt`")
+    times = traj.times
+    mesh = bb.mesh_history(model, times, traj.delta)
+    acc = bb.accelerations(model, times, traj.u, traj.v, traj.force)
+    j = bb.DOF_NAMES.index("carrier_T")
+    f_c = np.asarray(traj.v[:, j] / model.radii[j]) / (2.0 * np.pi)
+    torque = bb.motor_torque(model, times, traj.u, traj.v)
+    return RegimeResult(
+        name,
+        model,
+        traj,
+        mesh,
+        np.asarray(acc),
+        f_c,
+        np.asarray(model.profile.speed(times)),
+        np.asarray(torque),
+        np.asarray(model.profile.torque(times)),
+        dt,
+        wall,
+    )
+
+
+@dataclass
+class BackToBackStudy:
+    regimes: list[RegimeResult]
+    hertz: dict
+    modes: list[dict]
+    ridges: dict
+    settings: dict = field(default_factory=dict)
+
+
+def run_study(
+    params: bb.BackToBackParams | None = None,
+    *,
+    t_end: float | None = None,
+    dt: float = 1e-4,
+    stationary_t_end: float = 0.2,
+    save_every: int = 1,
+    stft_window: float = 0.1,
+    progress: bool = True,
+) -> BackToBackStudy:
+    """Stationary regime (A) at ``speed_start``/``sun_torque`` for ``stationary_t_end`` s, then the run-up
+    profile of the parameters (A then B) for ``t_end`` s (default the TOML's ``t_end_s``)."""
+    p = bb.default_params() if params is None else params
+    if t_end is None:
+        t_end = float(bb._read_toml(bb._params.path("back_to_back.toml"))["run_up"]["t_end_s"])
+    say = print if progress else (lambda *a, **k: None)
+    regimes = []
+    say(
+        f"  stationary regime: {float(p.speed_start) / bb.RPM:.0f} rpm, {float(p.sun_torque):g} N m, "
+        f"{stationary_t_end:g} s at dt = {dt:g} s ...",
+        flush=True,
+    )
+    regimes.append(
+        run_regime(bb.stationary(p), "stationary", t_end=stationary_t_end, dt=dt, save_every=save_every)
+    )
+    say(f"    {regimes[-1].wall_s:.1f} s")
+    say(
+        f"  run-up: {float(p.speed_start) / bb.RPM:.0f} -> {float(p.speed_end) / bb.RPM:.0f} rpm from "
+        f"t = {float(p.ramp_start):g} s over {float(p.ramp_duration):g} s, torque {float(p.sun_torque):g} -> "
+        f"{float(p.torque_end):g} N m, {t_end:g} s ...",
+        flush=True,
+    )
+    regimes.append(run_regime(p, "run_up", t_end=t_end, dt=dt, save_every=save_every))
+    say(f"    {regimes[-1].wall_s:.1f} s")
+    say("  Hertzian stiffness comparison and modal analysis ...", flush=True)
+    hertz = hertz_comparison(p, regimes[-1])
+    modes = modal_table(p)
+    window = min(stft_window, 0.5 * float(regimes[-1].times[-1] - regimes[-1].times[0]))
+    ridges = {r.name: ridge_check(r, window) for r in regimes}
+    return BackToBackStudy(
+        regimes,
+        hertz,
+        modes,
+        ridges,
+        settings=dict(
+            dt_s=dt,
+            t_end_s=t_end,
+            stationary_t_end_s=stationary_t_end,
+            save_every=save_every,
+            stft_window_s=window,
+        ),
+    )
+
+
+# ------------------------------------------------------------------------------------------------ analyses
+
+
+def ridge_check(reg: RegimeResult, window_s: float = 0.1) -> dict:
+    """STFT ridges against ``k Z_r f_c`` (f_c from the simulated carrier speed, averaged over each frame):
+    the fundamental in the transmission error of ring-planet 1 (test set) and the 3rd harmonic in the
+    test-ring acceleration. Returns the frame times, ridges, expectations and the largest relative errors."""
+    t = reg.times
+    fs = 1.0 / float(t[1] - t[0])
+    fm = reg.mesh_frequency
+    out = {}
+    te = np.asarray(reg.mesh.transmission_error[:, bb.CONTACT_NAMES.index("ring-planet1_T")])
+    acc = reg.acceleration[:, bb.DOF_NAMES.index("ring_T")]
+    for label, signal, order in (
+        ("transmission_error_ring-planet1_T", te, 1),
+        ("ring_T_acceleration", acc, 3),
+    ):
+        ft, f, a = stft(signal, fs, window_s)
+        expected = order * frame_average(t, fm, ft + t[0], window_s)
+        found = ridge(f, a, expected, rel_band=0.15)
+        err = np.abs(found - expected) / expected
+        out[label] = dict(
+            order=order,
+            frame_times_s=(ft + t[0]).tolist(),
+            ridge_hz=found.tolist(),
+            expected_hz=expected.tolist(),
+            max_relative_error=float(err.max()),
+        )
+    return out
+
+
+def harmonic_amplitudes(reg: RegimeResult, signal, orders=(1, 2, 3, 6), last_s: float | None = None) -> dict:
+    """Amplitude of ``signal`` at ``k f_m`` (stationary regime; Hann-windowed FFT of the last ``last_s`` s)."""
+    t = reg.times
+    fs = 1.0 / float(t[1] - t[0])
+    n = len(t) if last_s is None else int(round(last_s * fs))
+    x = np.asarray(signal)[-n:]
+    x = (x - x.mean()) * np.hanning(n)
+    spec = np.abs(np.fft.rfft(x)) * 2.0 / np.hanning(n).sum()
+    f = np.fft.rfftfreq(n, 1.0 / fs)
+    fm = float(np.mean(reg.mesh_frequency[-n:]))
+    return {k: float(spec[np.argmin(np.abs(f - k * fm))]) for k in orders}
+
+
+def hertz_comparison(
+    params: bb.BackToBackParams, run_up: RegimeResult | None = None, n_points: int = 128
+) -> dict:
+    """Mean Hertzian stiffness of sun-planet 1 and ring-planet 1 against the paper.
+
+    Quasi-static: the mesh law over one mesh cycle at the mesh load of ``sun_torque`` (zone A) and of
+    ``torque_end`` (end of the run-up). Dynamic (if ``run_up`` is given): time means over the first mesh
+    periods of zone A and over the last 0.05 s. Also: the load factor the Harsha law needs to reproduce the
+    paper's relative rise (``K_h ~ F^(0.08/1.08)`` per pair), and the face width that would bring the
+    quasi-static zone-A sun value to the paper's (``K_h ~ W^(0.92/1.08)`` at fixed load per pair)."""
+    p = params
+    law = bb.hertzian_mesh_law(p)
+    js, jr = bb.CONTACT_NAMES.index("sun-planet1_T"), bb.CONTACT_NAMES.index("ring-planet1_T")
+    qs = {}
+    for label, torque in (("zone_A", p.sun_torque), ("end_of_run_up", p.torque_end)):
+        st = bb.quasi_static_mesh(law, bb.nominal_mesh_load(p, torque), n_points)
+        qs[label] = dict(
+            torque_Nm=float(torque),
+            mesh_load_N=float(bb.nominal_mesh_load(p, torque)),
+            sun_planet=dict(
+                hertz_secant=float(jnp.mean(st.hertz_secant[:, js])),
+                hertz_tangent=float(jnp.mean(st.hertz_tangent[:, js])),
+                mesh=float(jnp.mean(st.mesh_stiffness[:, js])),
+            ),
+            ring_planet=dict(
+                hertz_secant=float(jnp.mean(st.hertz_secant[:, jr])),
+                hertz_tangent=float(jnp.mean(st.hertz_tangent[:, jr])),
+                mesh=float(jnp.mean(st.mesh_stiffness[:, jr])),
+            ),
+        )
+    p_h = HARSHA_DEFLECTION_EXP
+    expo = (p_h - 1.0) / p_h  # d ln K_h / d ln F of one pair = 0.08/1.08
+    out = dict(
+        assumptions=dict(
+            face_width_m=float(p.sun_planet.face_width),
+            hertz_law="F = 56065.703 l^0.92 d^1.08 (N, mm) = 5.6065703e10 l^0.92 d^1.08 (SI)",
+            stiffness="Eq. 13 secant F_h/d_h summed over "
+            "the pairs in contact (tangent = 1.08 x secant also given)",
+        ),
+        paper=dict(sun_planet=PAPER_HS_SUN, ring_planet=PAPER_HS_RING),
+        quasi_static=qs,
+        load_factor_for_paper_rise=dict(
+            sun_planet=float((PAPER_HS_SUN[1] / PAPER_HS_SUN[0]) ** (1.0 / expo)),
+            ring_planet=float((PAPER_HS_RING[1] / PAPER_HS_RING[0]) ** (1.0 / expo)),
+        ),
+        face_width_for_paper_zone_A_sun_m=float(p.sun_planet.face_width)
+        * float((PAPER_HS_SUN[0] / qs["zone_A"]["sun_planet"]["hertz_secant"]) ** (1.08 / 0.92)),
+        paper_ring_to_sun_ratio=PAPER_HS_RING[0] / PAPER_HS_SUN[0],
+        model_ring_to_sun_ratio=qs["zone_A"]["ring_planet"]["hertz_secant"]
+        / qs["zone_A"]["sun_planet"]["hertz_secant"],
+    )
+    if run_up is not None:
+        t = run_up.times
+        fm0 = float(run_up.mesh_frequency[0])
+        a = t <= t[0] + min(10.0 / fm0, float(p.ramp_start))
+        b = t >= t[-1] - 0.05
+        hs = np.asarray(run_up.mesh.hertz_secant)
+        out["dynamic"] = dict(
+            zone_A=dict(sun_planet=float(hs[a, js].mean()), ring_planet=float(hs[a, jr].mean())),
+            end=dict(sun_planet=float(hs[b, js].mean()), ring_planet=float(hs[b, jr].mean())),
+            windows_s=[[float(t[a][0]), float(t[a][-1])], [float(t[b][0]), float(t[b][-1])]],
+        )
+    return out
+
+
+def modal_table(params: bb.BackToBackParams | None = None, *, motor: bool = False) -> list[dict]:
+    """Natural frequencies [Hz] and mass-normalised shapes of the bench with the meshes at their mean
+    stiffness (:func:`back_to_back.linear_system`); ``motor=False``: free bench (one rigid rotation)."""
+    modes = modal_analysis(bb.linear_system(params, motor=motor))
+    rows = []
+    for i, f in enumerate(np.asarray(modes.frequencies_hz)):
+        shape = np.asarray(modes.shapes[:, i])
+        rows.append(
+            dict(
+                mode=i + 1,
+                frequency_hz=float(f),
+                dominant_dof=modes.dof_names[int(np.argmax(np.abs(shape)))],
+                shape=dict(zip(modes.dof_names, map(float, shape))),
+            )
+        )
+    return rows
+
+
+def format_modal_table(rows: list[dict]) -> str:
+    names = list(rows[0]["shape"])
+    lines = [f"{'mode':>4s} {'f (Hz)':>10s}  {'dominant':12s} shape ({', '.join(names)})"]
+    for r in rows:
+        lines.append(
+            f"{r['mode']:4d} {r['frequency_hz']:10.2f}  {r['dominant_dof']:12s} "
+            + " ".join(f"{v:+.2e}" for v in r["shape"].values())
+        )
+    return "\n".join(lines)
+
+
+def format_hertz(h: dict) -> str:
+    qa, qb = h["quasi_static"]["zone_A"], h["quasi_static"]["end_of_run_up"]
+    lines = [
+        f"mean Hertzian stiffness (Eq. 13 secant, summed over pairs), W = {h['assumptions']['face_width_m'] * 1e3:g} mm",
+        f"{'':14s} {'model A':>10s} {'model end':>10s} {'paper A':>10s} {'paper end':>10s}",
+    ]
+    for key, paper in (("sun_planet", h["paper"]["sun_planet"]), ("ring_planet", h["paper"]["ring_planet"])):
+        lines.append(
+            f"{key:14s} {qa[key]['hertz_secant']:10.3e} {qb[key]['hertz_secant']:10.3e} "
+            f"{paper[0]:10.3e} {paper[1]:10.3e}   (quasi-static, {qa['torque_Nm']:g} -> {qb['torque_Nm']:g} N m)"
+        )
+        if "dynamic" in h:
+            d = h["dynamic"]
+            lines.append(f"{'  dynamic':14s} {d['zone_A'][key]:10.3e} {d['end'][key]:10.3e}")
+    lines.append(
+        f"load factor the paper's rise needs: sun {h['load_factor_for_paper_rise']['sun_planet']:.2f}, "
+        f"ring {h['load_factor_for_paper_rise']['ring_planet']:.2f}; face width matching the paper's zone-A "
+        f"sun value: {h['face_width_for_paper_zone_A_sun_m'] * 1e3:.1f} mm"
+    )
+    return "\n".join(lines)
+
+
+# ------------------------------------------------------------------------------------------------ outputs
+
+
+def _mesh_arrays(reg: RegimeResult) -> dict:
+    m = reg.mesh
+    return dict(
+        times=reg.times,
+        phase=np.asarray(m.phase),
+        transmission_error=np.asarray(m.transmission_error),
+        force=np.asarray(m.force),
+        mesh_stiffness=np.asarray(m.mesh_stiffness),
+        hertz_secant=np.asarray(m.hertz_secant),
+        hertz_tangent=np.asarray(m.hertz_tangent),
+        pairs_in_contact=np.asarray(m.pairs_in_contact),
+        acceleration=reg.acceleration,
+        carrier_frequency=reg.carrier_frequency,
+        motor_speed=reg.motor_speed,
+        motor_torque=reg.motor_torque,
+        circulating_torque=reg.circulating_torque,
+        contact_names=np.array(bb.CONTACT_NAMES),
+        dof_names=np.array(bb.DOF_NAMES),
+    )
+
+
+MESH_UNITS = dict(
+    times="s",
+    phase="-",
+    transmission_error="m",
+    force="N",
+    mesh_stiffness="N/m",
+    hertz_secant="N/m",
+    hertz_tangent="N/m",
+    pairs_in_contact="-",
+    acceleration="m/s^2",
+    carrier_frequency="Hz",
+    motor_speed="rad/s",
+    motor_torque="N m",
+    circulating_torque="N m",
+)
+
+
+def write_outputs(study: BackToBackStudy, outdir) -> list[Path]:
+    """Trajectories (``save_results``), mesh histories (``.npz`` with names and ``units``), summary JSON, PNGs."""
+    import matplotlib.pyplot as plt
+
+    outdir = Path(outdir)
+    outdir.mkdir(parents=True, exist_ok=True)
+    written = []
+    for reg in study.regimes:
+        p = reg.model.params
+        attrs = dict(
+            regime=reg.name,
+            dt_s=reg.dt,
+            coordinates="u = r_b theta (m); theta = u / radius",
+            radii_m=[float(x) for x in reg.model.radii],
+            speed_rpm=[float(p.speed_start) / bb.RPM, float(p.speed_end) / bb.RPM],
+            circulating_torque_Nm=[float(p.sun_torque), float(p.torque_end)],
+            ramp_s=[float(p.ramp_start), float(p.ramp_duration)],
+            half_backlash_m=float(p.half_backlash),
+        )
+        written.append(save_results(outdir / f"{reg.name}_trajectory.npz", reg.trajectory, **attrs))
+        path = outdir / f"{reg.name}_mesh.npz"
+        np.savez_compressed(path, units=np.array(json.dumps(MESH_UNITS)), **_mesh_arrays(reg))
+        written.append(path)
+        written += _figures(reg, outdir, study.settings.get("stft_window_s", 0.1))
+    summary = dict(
+        settings=study.settings,
+        hertz=study.hertz,
+        ridges={
+            k: {
+                kk: dict(order=vv["order"], max_relative_error=vv["max_relative_error"])
+                for kk, vv in v.items()
+            }
+            for k, v in study.ridges.items()
+        },
+        modes_free_bench=[
+            dict(mode=r["mode"], frequency_hz=r["frequency_hz"], dominant_dof=r["dominant_dof"])
+            for r in study.modes
+        ],
+        wall_s={r.name: r.wall_s for r in study.regimes},
+    )
+    path = outdir / "summary.json"
+    path.write_text(json.dumps(summary, indent=2))
+    written.append(path)
+    plt.close("all")
+    return written
+
+
+def _figures(reg: RegimeResult, outdir: Path, window_s: float) -> list[Path]:
+    import matplotlib.pyplot as plt
+
+    t = reg.times
+    js, jr = bb.CONTACT_NAMES.index("sun-planet1_T"), bb.CONTACT_NAMES.index("ring-planet1_T")
+    out = []
+    with plt.rc_context(plots.STYLE):
+        fig, ax = plt.subplots(3, 1, figsize=(6.0, 6.0), sharex=True)
+        ax[0].plot(t, reg.motor_speed / bb.RPM, label="motor (prescribed)")
+        ax[0].plot(
+            t,
+            reg.carrier_frequency * 60.0 / bb.carrier_ratio(reg.model.params),
+            "--",
+            label="test carrier x (Z_s+Z_r)/Z_s",
+        )
+        ax[0].set_ylabel("speed (rpm)")
+        ax[0].legend()
+        ax[1].plot(t, reg.circulating_torque, label="circulating (test sun)")
+        ax[1].plot(t, reg.motor_torque, label="motor shaft")
+        ax[1].set_ylabel("torque (N m)")
+        ax[1].legend()
+        ax[2].plot(t, reg.mesh_frequency)
+        ax[2].set_ylabel("Z_r f_c (Hz)")
+        ax[2].set_xlabel("time (s)")
+        fig.suptitle(f"{reg.name.replace('_', ' ')}: operating conditions")
+        out.append(plots.save(fig, outdir / f"{reg.name}_operating.png"))
+
+        fig, ax = plt.subplots(2, 2, figsize=(8.0, 5.0), sharex=True)
+        n_avg = max(int(round(0.02 / float(t[1] - t[0]))), 1)  # 20 ms running mean (several mesh periods)
+        mean = lambda x: np.convolve(x, np.ones(n_avg) / n_avg, mode="same")  # noqa: E731
+        for col, (j, name) in enumerate(((js, "sun-planet 1"), (jr, "ring-planet 1"))):
+            for row, series in enumerate((reg.mesh.hertz_secant, reg.mesh.mesh_stiffness)):
+                x = np.asarray(series[:, j]) * 1e-9
+                ax[row, col].plot(t, x, lw=0.4, color="tab:blue")
+                inner = slice(n_avg, len(t) - n_avg) if len(t) > 3 * n_avg else slice(None)
+                ax[row, col].plot(t[inner], mean(x)[inner], color="tab:red", lw=1.2, label="20 ms mean")
+            ax[0, col].set_title(f"{name} (test set)")
+            ax[0, col].set_ylabel("Hertzian stiffness (1e9 N/m)")
+            ax[0, col].legend(loc="lower right")
+            ax[1, col].set_ylabel("mesh stiffness (1e9 N/m)")
+            ax[1, col].set_xlabel("time (s)")
+        fig.tight_layout()
+        out.append(plots.save(fig, outdir / f"{reg.name}_stiffness.png"))
+
+        fig, ax = plt.subplots(3, 1, figsize=(6.0, 6.0), sharex=True)
+        ax[0].plot(t, np.asarray(reg.mesh.transmission_error[:, jr]) * 1e6, lw=0.6)
+        ax[0].set_ylabel("TE ring-planet 1 (µm)")
+        ax[1].plot(t, np.asarray(reg.mesh.force[:, jr]) * 1e-3, lw=0.6)
+        ax[1].set_ylabel("mesh force ring-planet 1 (kN)")
+        for name in ("ring_T", "ring_R"):
+            ax[2].plot(t, reg.acceleration[:, bb.DOF_NAMES.index(name)], lw=0.5, label=name)
+        ax[2].set_ylabel("ring acceleration (m/s²)")
+        ax[2].set_xlabel("time (s)")
+        ax[2].legend()
+        fig.tight_layout()
+        out.append(plots.save(fig, outdir / f"{reg.name}_te_force_acceleration.png"))
+
+        fs = 1.0 / float(t[1] - t[0])
+        for label, signal, orders in (
+            ("ring_T_acceleration", reg.acceleration[:, bb.DOF_NAMES.index("ring_T")], (3, 6, 9)),
+            ("te_ring_planet1", np.asarray(reg.mesh.transmission_error[:, jr]), (1, 2, 3)),
+        ):
+            ft, f, a = stft(signal, fs, window_s)
+            fig, axs = plt.subplots(figsize=(6.0, 4.0))
+            top = min(fs / 2, 1.3 * max(orders) * float(reg.mesh_frequency.max()))
+            keep = f <= top
+            db = 20 * np.log10(a[:, keep].T + 1e-30)
+            axs.pcolormesh(ft + t[0], f[keep], db, shading="auto", vmin=db.max() - 60, vmax=db.max())
+            for k in orders:
+                axs.plot(t, k * reg.mesh_frequency, "w--", lw=0.6)
+            axs.set_xlabel("time (s)")
+            axs.set_ylabel("frequency (Hz)")
+            axs.set_title(f"STFT {label.replace('_', ' ')} (dB); dashed: k Z_r f_c, k = {orders}")
+            out.append(plots.save(fig, outdir / f"{reg.name}_stft_{label}.png"))
+    return out
