@@ -19,6 +19,6 @@ from .results import (
     load_results as load_results,
     save_results as save_results,
 )
-from .system import Contacts as Contacts, FourierSeries as FourierSeries, System as System
+from .system import Contacts as Contacts, FourierSeries as FourierSeries, Observables as Observables, System as System
 
 __version__ = "0.1.0"

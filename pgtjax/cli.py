@@ -8,6 +8,8 @@ import sys
 import time
 from pathlib import Path
 
+from . import cli_back_to_back
+
 
 def _positive_int(text):
     value = int(text)
@@ -106,6 +108,98 @@ def _run_modal(args) -> int:
     return 0
 
 
+def _add_planetary_options(p: argparse.ArgumentParser, quick: bool) -> None:
+    p.add_argument("--params", type=Path, default=None,
+                   help="planetary parameter file (TOML, layout of pgtjax/params/planetary.toml); default: the "
+                        "embedded thesis Tables 3.1-3.2 set")
+    p.add_argument("--samples", type=_positive_int, default=300 if quick else 100_000,
+                   help="Monte Carlo samples (0 skips MC; default %(default)s; the thesis used 100,000)")
+    p.add_argument("--periods", type=_positive_float, default=1.0, help="carrier periods simulated (default 1)")
+    p.add_argument("--dt", type=_positive_float, default=0.0027, help="time step in s (thesis: 0.0027)")
+    p.add_argument("--saves", type=_positive_int, default=200, help="saved times (default %(default)s)")
+    p.add_argument("--criteria", default="force", help="comma-separated SL criteria (force, energy, energy_origin)")
+    p.add_argument("--ring-model", choices=("elastic", "rigid"), default=None,
+                   help="override the parameter file's ring model")
+    p.add_argument("--elements", type=_positive_int, default=None, help="override the number of ring elements")
+    p.add_argument("--no-sweeps", action="store_true", help="skip the rim-thickness and support studies")
+    p.add_argument("--no-sensitivities", action="store_true", help="skip the autodiff sensitivities")
+    p.add_argument("--seed", type=int, default=0, help="PRNG seed of the Monte Carlo")
+    p.add_argument("--chunk-size", type=_positive_int, default=2000, help="MC samples per compiled batch")
+    p.add_argument("--out", type=Path, default=None, help="output folder (default: pgtjax-output/planetary)")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+
+
+def _planetary_params(args):
+    from .models import planetary as pm
+
+    overrides = {}
+    if args.ring_model:
+        overrides["ring_model"] = args.ring_model
+    if args.elements:
+        overrides["n_elements"] = args.elements
+    source = args.params if args.params is not None else None
+    return pm.load_params(source, **overrides) if source else pm.default_params(**overrides)
+
+
+def _run_planetary(args) -> int:
+    import jax
+
+    from .studies import planetary as study
+
+    params = _planetary_params(args)
+    out = args.out or Path("pgtjax-output") / "planetary"
+    criteria = tuple(c.strip() for c in args.criteria.split(",") if c.strip())
+    print(f"pgtjax planetary gear train (thesis ch. 3): {params.ring_model} ring, {params.n_planets} planets, "
+          f"{args.periods:g} carrier period(s) of {study.carrier_period(params):.2f} s at dt = {args.dt:g} s, "
+          f"SL {', '.join(criteria)}, MC {args.samples} samples")
+    start = time.perf_counter()
+    step = lambda msg: print(f"[{time.perf_counter() - start:7.1f} s] {msg}", flush=True)  # noqa: E731
+    step("SL + moment recursion" + (" and Monte Carlo" if args.samples else ""))
+    result = study.run_study(params, n_samples=args.samples, dt=args.dt, periods=args.periods, n_saves=args.saves,
+                             criteria=criteria, key=jax.random.key(args.seed), chunk_size=args.chunk_size,
+                             progress=not args.quiet)
+    sweeps = None
+    if not args.no_sweeps and params.ring_model == "elastic":
+        step("rim thickness 87 / 128 / 168 mm (SL)")
+        kw = dict(dt=args.dt, periods=args.periods, n_saves=args.saves)
+        sweeps = {"Rim thickness: thesis Figs. 3.12-3.15": study.parameter_sweep(
+            params, study.rim_thickness_variants(params), **kw)}
+        counts = tuple(c for c in (3, 6, 9) if params.ring.n_elements % c == 0)
+        step(f"bolt supports {counts} (SL)")
+        sweeps["Supports: number of bolts"] = study.parameter_sweep(params, study.support_variants(params, counts), **kw)
+    step("modal analysis")
+    modal = study.modal_table(params)
+    sens = None
+    if not args.no_sensitivities and params.ring_model == "elastic":
+        step("sensitivities by autodiff (checked by central differences)")
+        sens = study.sensitivities(params, dt=args.dt)
+    written = study.write_outputs(result, out, sweeps=sweeps, modal=modal, sens=sens)
+    if result.mc is not None:
+        e = study.error_summary(result)
+        print(f"SL vs MC ({e['n_samples']} samples, {e['dofs_compared']} DOFs): "
+              f"{100 * e['fraction_of_dof_time_points_within_3_se']:.2f} % of (DOF, time) points within 3 s.e.; "
+              f"largest deviation {e['max_mean_error_in_se']:.1f} s.e. (mean), {e['max_std_error_in_se']:.1f} s.e. (std); "
+              f"max contact-loss probability {e['contact_loss_probability_max']:.3g}")
+    if sens is not None:
+        print(f"d {sens['quantity']} / d(rim thickness, bolt k_r): autodiff {sens['gradient']}, "
+              f"central differences {sens['central_difference']}")
+    step(f"done; {len(written)} files written to {out.resolve()}")
+    return 0
+
+
+def _run_planetary_modal(args) -> int:
+    from .studies import planetary as study
+
+    rows = study.modal_table(_planetary_params(args))
+    if args.json:
+        print(json.dumps(rows, indent=2))
+    else:
+        print(f"{'mode':>4s} {'f (Hz)':>12s}  type")
+        for r in rows:
+            print(f"{r['mode']:4d} {r['frequency_hz']:12.3f}  {r['type']}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="pgtjax",
@@ -113,11 +207,23 @@ def build_parser() -> argparse.ArgumentParser:
                     "stochastic Newmark moments and Monte Carlo on JAX.",
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    run = sub.add_parser("run", help="the main job on the embedded default parameters (currently the ch. 4 "
-                                     "gear-pair study at a quick size; --full for the thesis size)")
-    _add_gear_pair_options(run, quick=True)
-    run.add_argument("--full", action="store_true", help="thesis size: 20,000 MC samples per regime")
-    run.set_defaults(func=lambda a: _run_gear_pair(_full(a)))
+    run = sub.add_parser("run", help="the main job on the embedded default parameters: the ch. 3 planetary "
+                                     "study at a quick size (--full: the thesis's 100,000 MC samples)")
+    _add_planetary_options(run, quick=True)
+    run.add_argument("--full", action="store_true", help="thesis size: 100,000 MC samples")
+    run.set_defaults(func=lambda a: _run_planetary(_full(a)))
+
+    plan = sub.add_parser("planetary", help="thesis ch. 3: planetary gear train with elastic ring, SL vs MC, rim "
+                                            "thickness, supports, modes, sensitivities")
+    _add_planetary_options(plan, quick=False)
+    plan.set_defaults(func=_run_planetary)
+
+    pmodal = sub.add_parser("planetary-modal", help="natural frequencies and mode types of the planetary model")
+    pmodal.add_argument("--params", type=Path, default=None, help="planetary parameter file (TOML)")
+    pmodal.add_argument("--ring-model", choices=("elastic", "rigid"), default=None, help="override the ring model")
+    pmodal.add_argument("--elements", type=_positive_int, default=None, help="override the number of ring elements")
+    pmodal.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    pmodal.set_defaults(func=_run_planetary_modal)
 
     gear = sub.add_parser("gear-pair", help="thesis ch. 4: gear pair with backlash, SL vs MC in three regimes")
     _add_gear_pair_options(gear, quick=False)
@@ -135,12 +241,14 @@ def build_parser() -> argparse.ArgumentParser:
     modal.add_argument("--params", type=Path, default=None, help="gear-pair parameter file (TOML)")
     modal.add_argument("--json", action="store_true", help="print JSON instead of a table")
     modal.set_defaults(func=_run_modal)
+
+    cli_back_to_back.register(sub)
     return parser
 
 
 def _full(args):
     if args.full:
-        args.samples = 20_000
+        args.samples = 100_000
     return args
 
 

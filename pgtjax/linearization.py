@@ -34,7 +34,7 @@ from ._numerics import safe_sqrt
 from .contact import check_criterion
 from .newmark import Snapshot, check_noise_scheme, snapshot, step_matrices
 from .results import MomentResult
-from .system import System, validate_system, validate_time_grid
+from .system import Observables, System, validate_system, validate_time_grid
 
 
 class _StepData(NamedTuple):
@@ -154,6 +154,8 @@ def _contact_state(system, snap: Snapshot, mean, cov):
 
 
 class _Saved(NamedTuple):
+    obs_mean: jax.Array
+    obs_std: jax.Array
     mean: jax.Array
     var: jax.Array
     z: jax.Array
@@ -166,8 +168,15 @@ class _Saved(NamedTuple):
     converged: jax.Array
 
 
-def _record(system, carry: _Carry, criterion, info: _FixedPointInfo) -> _Saved:
+def _record(system, carry: _Carry, criterion, info: _FixedPointInfo, t, observables) -> _Saved:
     nc = system.n_contacts
+    n = system.n_dof
+    if observables is not None:
+        c = observables(t)
+        obs_mean = c @ carry.mean[:n]
+        obs_std = safe_sqrt(jnp.sum((c @ carry.cov[:n, :n]) * c, axis=1))
+    else:
+        obs_mean = obs_std = jnp.zeros((0,))
     if nc:
         mu, sigma = carry.z[:nc], carry.z[nc:]
         k, b = carry.snap.contact_stiffness, system.contacts.clearance
@@ -177,6 +186,8 @@ def _record(system, carry: _Carry, criterion, info: _FixedPointInfo) -> _Saved:
         lin = f_mean = f_std = None
         empty = jnp.zeros((0,))
     return _Saved(
+        obs_mean,
+        obs_std,
         carry.mean,
         jnp.diagonal(carry.cov),
         carry.z,
@@ -262,6 +273,7 @@ def solve_moments(
     max_iter: int = 50,
     throw: bool = True,
     checkpoint: bool = True,
+    observables: Observables | None = None,
 ) -> MomentResult:
     """Mean and standard deviation of every DOF, contact deflection and contact force by SL + stochastic
     Newmark (thesis Eqs. 3.43-3.53, 4.51-4.63).
@@ -279,6 +291,8 @@ def solve_moments(
         throw: raise if a step's fixed point does not converge or a NaN appears (works under ``jit``);
             with ``False`` the flags are returned in the result (``converged``, ``iterations``, ``residual``).
         checkpoint: rematerialize each saved block in reverse mode (memory ~ number of saves, not steps).
+        observables: optional :class:`pgtjax.Observables` ``y = C(t) u`` whose mean and standard deviation
+            are reported (``mean_obs``, ``std_obs``).
     """
     validate_system(system, t0)
     validate_time_grid(dt, n_steps, save_every)
@@ -300,18 +314,20 @@ def solve_moments(
     return _solve_moments_jit(
         system, jnp.asarray(t0, jnp.float64), jnp.asarray(dt, jnp.float64), u0, v0, p0,
         n_steps=n_steps, save_every=save_every, criterion=criterion, noise_scheme=noise_scheme,
-        rtol=rtol, max_iter=max_iter, throw=throw, checkpoint=checkpoint,
+        rtol=rtol, max_iter=max_iter, throw=throw, checkpoint=checkpoint, observables=observables,
     )
 
 
 @eqx.filter_jit
 def _solve_moments_jit(
-    system, t0, dt, u0, v0, p0, *, n_steps, save_every, criterion, noise_scheme, rtol, max_iter, throw, checkpoint
+    system, t0, dt, u0, v0, p0, *, n_steps, save_every, criterion, noise_scheme, rtol, max_iter, throw, checkpoint,
+    observables,
 ):
     mean0 = jnp.concatenate([u0, v0])
     s0 = snapshot(system, t0)
     carry = _Carry(mean0, p0, s0, _contact_state(system, s0, mean0, p0))
-    first = _record(system, carry, criterion, _FixedPointInfo(jnp.array(0), jnp.array(0.0), jnp.array(True)))
+    first = _record(system, carry, criterion, _FixedPointInfo(jnp.array(0), jnp.array(0.0), jnp.array(True)), t0,
+                    observables)
     n_blocks = n_steps // save_every
 
     def block(carry, block_index):
@@ -324,7 +340,8 @@ def _solve_moments_jit(
         worst = _FixedPointInfo(
             jnp.max(infos.iterations), jnp.max(infos.residual), jnp.all(infos.converged)
         )
-        return carry, _record(system, carry, criterion, worst)
+        t_end = t0 + dt * (block_index + 1) * save_every
+        return carry, _record(system, carry, criterion, worst, t_end, observables)
 
     if checkpoint:
         block = jax.checkpoint(block)
@@ -342,4 +359,4 @@ def _solve_moments_jit(
                               "SL fixed point did not converge at some step: raise `max_iter`, reduce `dt`, "
                               "or pass throw=False to inspect `converged`/`residual`."),
         )
-    return MomentResult.from_saved(system, times, saved, criterion=criterion)
+    return MomentResult.from_saved(system, times, saved, criterion=criterion, observables=observables)

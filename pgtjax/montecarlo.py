@@ -29,7 +29,7 @@ from .newmark import (
     snapshot,
 )
 from .results import MonteCarloResult
-from .system import System, validate_system, validate_time_grid
+from .system import Observables, System, validate_system, validate_time_grid
 
 try:  # progress bars are a convenience, not a requirement
     from tqdm.auto import tqdm
@@ -37,32 +37,45 @@ except ImportError:  # pragma: no cover
     tqdm = None
 
 
-def quantity_names(system: System) -> list[str]:
+_INITIAL_STATE_TAG = 0xFFFFFFFF  # fold_in tag of a sample's initial-state draw (block indices are smaller)
+
+
+def quantity_names(system: System, observables: Observables | None = None) -> list[str]:
     """Names of the per-sample quantities MC records: ``u:<dof>``, ``v:<dof>``, ``delta:<contact>``,
-    ``force:<contact>`` (the keys for ``histograms``)."""
+    ``force:<contact>`` and ``obs:<observable>`` (the keys for ``histograms``)."""
     names = [f"u:{d}" for d in system.dof_names] + [f"v:{d}" for d in system.dof_names]
     names += [f"delta:{c}" for c in system.contact_names()] + [f"force:{c}" for c in system.contact_names()]
+    if observables is not None:
+        names += [f"obs:{o}" for o in observables.names]
     return names
 
 
 @eqx.filter_jit
 def _chunk(
-    system, key, sample_ids, weights, u0, v0, t0, dt, hist_edges, *, n_steps, save_every, noise_scheme,
-    hist_columns,
+    system, key, sample_ids, weights, u0, v0, init_factor, t0, dt, hist_edges, observables, *, n_steps, save_every,
+    noise_scheme, hist_columns,
 ):
     n_batch = sample_ids.shape[0]
     nd = noise_dimension(system, noise_scheme)
     sample_keys = jax.vmap(jax.random.fold_in, in_axes=(None, 0))(key, sample_ids)
     s0 = snapshot(system, t0)
-    state = initial_sample_state(
-        system, s0, jnp.broadcast_to(u0, (n_batch, u0.shape[0])), jnp.broadcast_to(v0, (n_batch, v0.shape[0]))
-    )
+    n = u0.shape[0]
+    x0 = jnp.broadcast_to(jnp.concatenate([u0, v0]), (n_batch, 2 * n))
+    if init_factor.shape[1]:  # random initial state: mean + F z, F F^T = initial covariance
+        z = jax.vmap(lambda k: jax.random.normal(jax.random.fold_in(k, _INITIAL_STATE_TAG), (init_factor.shape[1],)))(
+            sample_keys
+        )
+        x0 = x0 + z @ init_factor.T
+    state = initial_sample_state(system, s0, x0[:, :n], x0[:, n:])
     total = jnp.sum(weights)
     clearance = system.contact_clearance()
 
-    def statistics(state, snap):
+    def statistics(state, snap, t):
         delta = state.u @ snap.direction
-        q = jnp.concatenate([state.u, state.v, delta, state.force], axis=1)
+        parts = [state.u, state.v, delta, state.force]
+        if observables is not None:
+            parts.append(state.u @ observables(t).T)
+        q = jnp.concatenate(parts, axis=1)
         mean = weights @ q / total
         m2 = weights @ (q - mean[None, :]) ** 2
         loss = weights @ (jnp.abs(delta) < clearance[None, :]).astype(q.dtype)
@@ -98,9 +111,9 @@ def _chunk(
 
         carry, _ = jax.lax.scan(inner, carry, (jnp.arange(save_every), draws))
         state, snap, _ = carry
-        return carry, statistics(state, snap)
+        return carry, statistics(state, snap, t0 + dt * (block_index + 1) * save_every)
 
-    first = statistics(state, s0)
+    first = statistics(state, s0, t0)
     carry = (state, s0, jnp.array(0.0))
     carry, saved = jax.lax.scan(block, carry, jnp.arange(n_steps // save_every))
     saved = jax.tree.map(lambda a, b: jnp.concatenate([a[None], b], axis=0), first, saved)
@@ -117,6 +130,8 @@ def monte_carlo(
     n_steps: int,
     initial_displacement=None,
     initial_velocity=None,
+    initial_covariance=None,
+    observables: Observables | None = None,
     noise_scheme: str = "trapezoidal",
     save_every: int = 1,
     chunk_size: int = 5000,
@@ -127,8 +142,8 @@ def monte_carlo(
     """Monte Carlo statistics of the nonlinear system driven by sampled white noise.
 
     Args:
-        system, t0, dt, n_steps, save_every, noise_scheme, initial_*: as in :func:`pgtjax.solve_moments`
-            (deterministic initial state).
+        system, t0, dt, n_steps, save_every, noise_scheme, initial_*, observables: as in
+            :func:`pgtjax.solve_moments`; with ``initial_covariance`` each sample starts from a Gaussian draw.
         n_samples: number of samples (>= 2).
         key: a ``jax.random`` key (e.g. ``jax.random.key(0)``).
         chunk_size: samples per compiled batch (bounds memory: about ``chunk_size * 4 n`` floats).
@@ -151,7 +166,18 @@ def monte_carlo(
     v0 = jnp.zeros(n) if initial_velocity is None else jnp.asarray(initial_velocity, jnp.float64)
     if u0.shape != (n,) or v0.shape != (n,):
         raise ValueError(f"`initial_displacement` and `initial_velocity` must have shape ({n},)")
-    names = quantity_names(system)
+    if initial_covariance is None:
+        init_factor = jnp.zeros((2 * n, 0))
+    else:
+        p0 = np.asarray(initial_covariance, dtype=np.float64)
+        if p0.shape != (2 * n, 2 * n) or not np.all(np.isfinite(p0)):
+            raise ValueError(f"`initial_covariance` must be a finite ({2 * n}, {2 * n}) matrix")
+        lam, vec = np.linalg.eigh(0.5 * (p0 + p0.T))
+        if lam.min() < -1e-10 * max(lam.max(), 1e-300):
+            raise ValueError("`initial_covariance` must be positive semi-definite")
+        keep = lam > 1e-14 * max(lam.max(), 1e-300)
+        init_factor = jnp.asarray(vec[:, keep] * np.sqrt(lam[keep])[None, :])
+    names = quantity_names(system, observables)
     histograms = dict(histograms or {})
     hist_columns, edges = [], []
     for name, e in histograms.items():
@@ -176,8 +202,8 @@ def monte_carlo(
         ids = np.arange(c * chunk, (c + 1) * chunk)
         weights = (ids < n_samples).astype(np.float64)
         (m_c, m2_c, loss_c, counts_c), bad_c = _chunk(
-            system, key, jnp.asarray(ids), jnp.asarray(weights), u0, v0,
-            jnp.asarray(t0, jnp.float64), jnp.asarray(dt, jnp.float64), hist_edges,
+            system, key, jnp.asarray(ids), jnp.asarray(weights), u0, v0, init_factor,
+            jnp.asarray(t0, jnp.float64), jnp.asarray(dt, jnp.float64), hist_edges, observables,
             n_steps=n_steps, save_every=save_every, noise_scheme=noise_scheme, hist_columns=tuple(hist_columns),
         )
         n_c = float(weights.sum())
@@ -201,12 +227,12 @@ def monte_carlo(
 
     std = np.sqrt(np.maximum(m2, 0.0) / (total_n - 1.0))
     nc = system.n_contacts
-    cut = np.cumsum([n, n, nc])
+    cut = np.cumsum([n, n, nc, nc])
     times = t0 + dt * save_every * np.arange(n_steps // save_every + 1)
     hist_idx = np.array([int(np.argmin(np.abs(times - t))) for t in histogram_times], dtype=int)
     split = lambda a: np.split(a, cut, axis=1)  # noqa: E731
-    mu_u, mu_v, mu_d, mu_f = split(mean)
-    sd_u, sd_v, sd_d, sd_f = split(std)
+    mu_u, mu_v, mu_d, mu_f, mu_o = split(mean)
+    sd_u, sd_v, sd_d, sd_f, sd_o = split(std)
     return MonteCarloResult(
         times=jnp.asarray(times),
         dof_names=system.dof_names,
@@ -222,4 +248,6 @@ def monte_carlo(
         histograms={name: jnp.asarray(counts[hist_idx, j]) for j, name in enumerate(histograms)},
         contact_loss_probability=jnp.asarray(loss / total_n),
         unconverged=jnp.asarray(bad),
+        mean_obs=jnp.asarray(mu_o), std_obs=jnp.asarray(sd_o),
+        observable_names=() if observables is None else observables.names,
     )

@@ -25,26 +25,30 @@ def scaled(unit: str):
     return _SCALE.get(unit, (1.0, unit))
 
 
-def mean_std_figure(times, curves: dict, quantities: list[tuple[str, str]], title: str = ""):
-    """One column per quantity, rows = mean and standard deviation.
+def mean_std_figure(times, curves: dict, quantities: list[tuple[str, str]], title: str = "",
+                    second: str = "std"):
+    """One column per quantity, rows = mean and standard deviation (or mean square, ``second="mean square"``).
 
-    ``curves[label][quantity] = (mean array, std array)``; ``quantities`` = [(name, unit)].
+    ``curves[label][quantity] = (mean array, second array)``; ``quantities`` = [(name, unit)].
     """
     with plt.rc_context(STYLE):
         fig, axes = plt.subplots(2, len(quantities), figsize=(2.6 * len(quantities) + 0.6, 4.4), squeeze=False,
                                  sharex=True)
-        t_ms = np.asarray(times) * 1e3
+        t_span = float(np.asarray(times)[-1] - np.asarray(times)[0]) if len(times) > 1 else 1.0
+        t_scale, t_unit = (1e3, "ms") if t_span < 2.0 else (1.0, "s")
+        t_ms = np.asarray(times) * t_scale
         for j, (name, unit) in enumerate(quantities):
             factor, shown = scaled(unit)
             for label, data in curves.items():
                 mean, std = data[name]
                 style = LINESTYLES.get(label, {})
                 axes[0, j].plot(t_ms, np.asarray(mean) * factor, label=label, **style)
-                axes[1, j].plot(t_ms, np.asarray(std) * factor, label=label, **style)
+                f2 = factor**2 if second == "mean square" else factor
+                axes[1, j].plot(t_ms, np.asarray(std) * f2, label=label, **style)
             axes[0, j].set_title(name)
             axes[0, j].set_ylabel(f"mean ({shown})")
-            axes[1, j].set_ylabel(f"std ({shown})")
-            axes[1, j].set_xlabel("time (ms)")
+            axes[1, j].set_ylabel(f"{second} ({shown}²)" if second == "mean square" else f"std ({shown})")
+            axes[1, j].set_xlabel(f"time ({t_unit})")
         axes[0, 0].legend(loc="best")
         if title:
             fig.suptitle(title)

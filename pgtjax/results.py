@@ -24,6 +24,13 @@ class _Labelled(eqx.Module):
     dof_units: tuple[str, ...] = eqx.field(static=True)
     contact_names: tuple[str, ...] = eqx.field(static=True)
 
+    def observable(self, name: str) -> int:
+        """Index of an observable (see :class:`pgtjax.Observables`) by name."""
+        names = getattr(self, "observable_names", ())
+        if name not in names:
+            raise ValueError(f"unknown observable {name!r}; known: {', '.join(names)}")
+        return names.index(name)
+
     def dof(self, name: str) -> int:
         """Index of a DOF by name."""
         try:
@@ -43,7 +50,8 @@ class MomentResult(_Labelled):
 
     Shapes: ``(n_times, n_dof)`` for DOFs (displacement ``*_u``, velocity ``*_v``), ``(n_times, n_contacts)``
     for contacts. ``force_mean``/``force_std`` are the moments of the *nonlinear* contact force under the
-    Gaussian deflection (N); ``k_e``/``f_0`` the linearization coefficients (N/m, N). ``iterations``,
+    Gaussian deflection (N); ``k_e``/``f_0`` the linearization coefficients (N/m, N); ``mean_obs``/``std_obs``
+    the moments of the observables (``observable_names``), if any. ``iterations``,
     ``residual`` (scaled) and ``converged`` report the per-step fixed point (worst step of each saved block).
     """
 
@@ -60,10 +68,13 @@ class MomentResult(_Labelled):
     iterations: jax.Array
     residual: jax.Array
     converged: jax.Array
+    mean_obs: jax.Array
+    std_obs: jax.Array
     criterion: str = eqx.field(static=True)
+    observable_names: tuple[str, ...] = eqx.field(static=True, default=())
 
     @classmethod
-    def from_saved(cls, system, times, saved, *, criterion):
+    def from_saved(cls, system, times, saved, *, criterion, observables=None):
         n, nc = system.n_dof, system.n_contacts
         sd = safe_sqrt(saved.var)
         return cls(
@@ -84,7 +95,10 @@ class MomentResult(_Labelled):
             iterations=saved.iterations,
             residual=saved.residual,
             converged=saved.converged,
+            mean_obs=saved.obs_mean,
+            std_obs=saved.obs_std,
             criterion=criterion,
+            observable_names=() if observables is None else observables.names,
         )
 
 
@@ -111,6 +125,9 @@ class MonteCarloResult(_Labelled):
     histograms: dict
     contact_loss_probability: jax.Array
     unconverged: jax.Array
+    mean_obs: jax.Array
+    std_obs: jax.Array
+    observable_names: tuple[str, ...] = eqx.field(static=True, default=())
 
     def standard_error(self, what: str = "u"):
         """Standard errors (mean, std) of ``mean_<what>`` and ``std_<what>`` (normal approximation)."""

@@ -69,6 +69,23 @@ class FourierSeries(eqx.Module):
         )
 
 
+class Observables(eqx.Module):
+    """Linear outputs ``y = C(t) u`` of the displacements whose moments the solvers report (e.g. the ring
+    displacement at a moving contact point). ``matrix``: (n_obs, n_dof) array or ``t -> array``."""
+
+    matrix: ArrayOrFunction
+    names: tuple[str, ...] = eqx.field(static=True)
+    units: tuple[str, ...] = eqx.field(static=True)
+
+    def __init__(self, matrix, names: Sequence[str], units: Sequence[str] | None = None):
+        self.matrix = matrix if callable(matrix) else jnp.asarray(matrix, dtype=jnp.float64)
+        self.names = tuple(names)
+        self.units = tuple(units) if units is not None else ("m",) * len(self.names)
+
+    def __call__(self, t):
+        return at_time(self.matrix, t)
+
+
 class Contacts(eqx.Module):
     """A group of contacts sharing one contact law.
 
