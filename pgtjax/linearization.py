@@ -309,7 +309,7 @@ def solve_moments(
     ):
         if value.shape != shape:
             raise ValueError(f"`{name}` must have shape {shape}, got {value.shape}")
-        if not isinstance(value, jax.core.Tracer) and not bool(jnp.all(jnp.isfinite(value))):
+        if not isinstance(value, jax.core.Tracer) and not np.all(np.isfinite(np.asarray(value))):
             raise ValueError(f"`{name}` must be finite")
     return _solve_moments_jit(
         system, jnp.asarray(t0, jnp.float64), jnp.asarray(dt, jnp.float64), u0, v0, p0,

@@ -197,11 +197,12 @@ class System(eqx.Module):
 
 
 def _is_concrete(x) -> bool:
+    """A value we can check in Python (checks use NumPy: under ``jit`` even jnp ops on constants are staged)."""
     return eqx.is_array(x) and not isinstance(x, jax.core.Tracer)
 
 
 def _check_finite(name: str, value) -> None:
-    if _is_concrete(value) and not bool(jnp.all(jnp.isfinite(value))):
+    if _is_concrete(value) and not np.all(np.isfinite(np.asarray(value))):
         raise ValueError(f"`{name}` must contain only finite numbers (no NaN or inf)")
 
 
@@ -249,7 +250,7 @@ def validate_system(system: System, t0: float = 0.0) -> None:
         raise ValueError(f"`noise_input` must have shape ({n}, n_noise) (one row per DOF), got {jnp.shape(b)}")
     _check_finite("noise_input", b)
     _check_finite("spectral_density", system.spectral_density)
-    if _is_concrete(system.spectral_density) and bool(jnp.any(system.spectral_density < 0.0)):
+    if _is_concrete(system.spectral_density) and np.any(np.asarray(system.spectral_density) < 0.0):
         raise ValueError("`spectral_density` must be >= 0")
     if len(system.dof_names) != n or len(system.dof_units) != n:
         raise ValueError(f"`dof_names` and `dof_units` must have {n} entries")
@@ -257,7 +258,7 @@ def validate_system(system: System, t0: float = 0.0) -> None:
         c = system.contacts
         nc = c.count
         _check_finite("clearance", c.clearance)
-        if _is_concrete(c.clearance) and bool(jnp.any(c.clearance < 0.0)):
+        if _is_concrete(c.clearance) and np.any(np.asarray(c.clearance) < 0.0):
             raise ValueError(f"`clearance` (half-backlash b) must be >= 0 m, got {np.asarray(c.clearance)}")
         g = system.contact_direction(jnp.asarray(t0, dtype=jnp.float64))
         _check_shape("contact direction", g, (n, nc))
@@ -266,7 +267,7 @@ def validate_system(system: System, t0: float = 0.0) -> None:
         if jnp.shape(k) not in ((), (nc,)):
             raise ValueError(f"`contact stiffness` must be a scalar or have shape ({nc},), got {jnp.shape(k)}")
         _check_finite("contact stiffness", k)
-        if _is_concrete(k) and bool(jnp.any(k < 0.0)):
+        if _is_concrete(k) and np.any(np.asarray(k) < 0.0):
             raise ValueError("`contact stiffness` must be >= 0 N/m")
         if len(c.names) != nc:
             raise ValueError(f"contact `names` must have {nc} entries, got {len(c.names)}")

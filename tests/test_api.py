@@ -112,3 +112,17 @@ def test_modal_analysis_two_dof():
     modes = pg.modal_analysis(sys)
     np.testing.assert_allclose(modes.angular_frequencies, [np.sqrt(k / m), np.sqrt(3 * k / m)], rtol=1e-12)
     np.testing.assert_allclose(modes.shapes.T @ sys.mass @ modes.shapes, np.eye(2), atol=1e-12)
+
+
+def test_jit_of_value_and_grad_with_concrete_initial_state():
+    """Regression: input checks on concrete arrays must not stage jnp ops under an outer jit."""
+    u0 = np.array([1e-3, 0.0])
+
+    def loss(k):
+        res = pg.solve_moments(gear_like(k, 0.02), dt=2e-3, n_steps=20, save_every=20, initial_displacement=u0,
+                               initial_covariance=np.eye(4) * 1e-8)
+        return res.std_u[-1, 1]
+
+    value, grad = jax.jit(jax.value_and_grad(loss))(5.0e4)
+    np.testing.assert_allclose(value, loss(5.0e4), rtol=1e-12)
+    assert np.isfinite(float(grad))

@@ -8,7 +8,8 @@ import pytest
 from nbclient import NotebookClient
 
 NOTEBOOKS = sorted((Path(__file__).parents[1] / "notebooks").glob("*.ipynb"))
-SMALL = {"PGTJAX_NOTEBOOK_SAMPLES": "600", "PGTJAX_NOTEBOOK_T_END": "0.006", "MPLBACKEND": "Agg"}
+SMALL = {"PGTJAX_NOTEBOOK_SAMPLES": "600", "PGTJAX_NOTEBOOK_T_END": "0.006", "PGTJAX_NOTEBOOK_PERIODS": "0.02",
+         "PGTJAX_NOTEBOOK_OPT_STEPS": "3", "MPLBACKEND": "Agg"}
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])

@@ -1,0 +1,107 @@
+"""Benchmark of the ch. 3 planetary model (70 DOF, 6 backlash meshes, moving ring contacts):
+SL + recursion over one carrier period at the thesis's step (10,022 steps of 0.0027 s), its gradient
+(reverse mode w.r.t. rim thickness and bolt stiffness), and Monte Carlo throughput, extrapolated to the
+thesis's 100,000 samples, with the peak resident memory of the process.
+
+Usage: python benchmarks/bench_planetary.py [--mc-samples 2000] [--mc-periods 0.25] [--repeats 3]
+Writes benchmarks/results/planetary.json. Correctness first: MC vs SL on a short run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import resource
+import time
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from _common import timed, write
+
+import pgtjax as pg
+from pgtjax.models import planetary as pm
+from pgtjax.studies import planetary as study
+
+THESIS_SL_S = 48.0
+THESIS_MC_S = 223 * 3600.0
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--mc-samples", type=int, default=2000)
+    ap.add_argument("--mc-periods", type=float, default=0.25, help="fraction of a carrier period for MC timing")
+    ap.add_argument("--repeats", type=int, default=3)
+    args = ap.parse_args()
+    p = pm.default_params()
+    lay = pm.layout(p)
+    system = pm.planetary(p)
+    u_eq = pg.static_equilibrium(system)
+    p0 = pm.wind_filter_stationary_covariance(p, lay)
+    dt = 0.0027
+    n_period = int(round(study.carrier_period(p) / dt))
+
+    # --- correctness: MC vs SL on a short run
+    kw = dict(dt=dt, n_steps=200, save_every=50, initial_displacement=u_eq, initial_covariance=p0)
+    sl = pg.solve_moments(system, **kw)
+    mc = pg.monte_carlo(system, n_samples=1000, key=jax.random.key(5), progress=False, **kw)
+    se_m, se_s = mc.standard_error("u")
+    dofs = [lay.sun(2), lay.carrier(2), lay.planet(0, 1), lay.ring_start + 7]
+    z = float(np.max(np.abs(np.asarray(sl.std_u - mc.std_u))[1:, dofs] / np.asarray(se_s)[1:, dofs]))
+    print(f"correctness: max |SL - MC| std over 4 DOFs = {z:.2f} s.e.")
+
+    # --- SL over one carrier period
+    sl_fn = lambda: pg.solve_moments(system, dt=dt, n_steps=n_period, save_every=2,  # noqa: E731
+                                     initial_displacement=u_eq, initial_covariance=p0).std_u
+    sl_first, sl_med, sl_all, _ = timed(sl_fn, repeats=args.repeats)
+    print(f"SL one carrier period ({n_period} steps): first {sl_first:.1f} s, median {sl_med:.2f} s {sl_all}")
+
+    # --- gradient of a scalar of the full-period SL run
+    node = lay.ring_start + 6
+
+    def loss(x):
+        ring = eqx.tree_at(lambda r: (r.thickness, r.radius, r.k_support_radial), p.ring,
+                           (x[0], p.ring_pitch_radius + x[0] / 2, x[1]))
+        q = eqx.tree_at(lambda z: z.ring, p, ring)
+        r = pg.solve_moments(pm.planetary(q), dt=dt, n_steps=n_period, save_every=2,
+                             initial_displacement=u_eq, initial_covariance=p0)
+        return jnp.max(r.std_u[:, node])
+
+    x = jnp.array([float(p.ring.thickness), 1.362e10])
+    fwd_first, fwd_med, fwd_all, _ = timed(jax.jit(loss), x, repeats=args.repeats)
+    grad_first, grad_med, grad_all, g = timed(jax.jit(jax.grad(loss)), x, repeats=args.repeats)
+    print(f"scalar of the SL run: forward {fwd_med:.2f} s, gradient {grad_med:.2f} s "
+          f"({grad_med / fwd_med:.2f}x); gradient {np.asarray(g)}")
+
+    # --- Monte Carlo throughput
+    n_mc = int(round(args.mc_periods * n_period))
+    n_mc -= n_mc % 10
+    mc_fn = lambda: pg.monte_carlo(system, n_samples=args.mc_samples, key=jax.random.key(1), dt=dt,  # noqa: E731
+                                   n_steps=n_mc, save_every=10, chunk_size=args.mc_samples,
+                                   initial_displacement=u_eq, initial_covariance=p0, progress=False).std_u
+    mc_first, mc_med, mc_all, _ = timed(mc_fn, repeats=args.repeats)
+    per_sample_step = mc_med / (args.mc_samples * n_mc)
+    extrapolated = per_sample_step * 100_000 * n_period
+    rss_gb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024**2
+    print(f"MC {args.mc_samples} x {n_mc} steps: median {mc_med:.2f} s -> {per_sample_step * 1e9:.0f} ns per "
+          f"sample-step; 100,000 samples x one period extrapolated {extrapolated / 60:.1f} min; peak RSS {rss_gb:.2f} GB")
+    path = write("planetary", dict(
+        command="python benchmarks/bench_planetary.py " + " ".join(
+            f"--{k.replace('_', '-')} {v}" for k, v in vars(args).items()),
+        n_dof=lay.n_dof, n_contacts=system.n_contacts, dt_s=dt, steps_per_carrier_period=n_period,
+        correctness=dict(max_std_deviation_in_se=z),
+        sl_one_period=dict(first_call_s=sl_first, median_s=sl_med, runs_s=sl_all,
+                           ratio_vs_thesis_48s=THESIS_SL_S / sl_med),
+        gradient=dict(forward_median_s=fwd_med, gradient_median_s=grad_med, ratio=grad_med / fwd_med,
+                      forward_first_call_s=fwd_first, gradient_first_call_s=grad_first),
+        monte_carlo=dict(samples=args.mc_samples, steps=n_mc, first_call_s=mc_first, median_s=mc_med, runs_s=mc_all,
+                         per_sample_step_ns=per_sample_step * 1e9,
+                         extrapolated_100k_one_period_s=extrapolated,
+                         ratio_vs_thesis_223_cpu_hours=THESIS_MC_S / extrapolated,
+                         peak_rss_gb=rss_gb, chunk_size=args.mc_samples),
+    ))
+    print("wrote", path)
+
+
+if __name__ == "__main__":
+    main()
