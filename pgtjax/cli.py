@@ -8,7 +8,7 @@ import sys
 import time
 from pathlib import Path
 
-from . import cli_back_to_back
+from . import cli_back_to_back, cli_ring
 
 
 def _positive_int(text):
@@ -242,6 +242,7 @@ def build_parser() -> argparse.ArgumentParser:
     modal.add_argument("--json", action="store_true", help="print JSON instead of a table")
     modal.set_defaults(func=_run_modal)
 
+    cli_ring.register(sub)
     cli_back_to_back.register(sub)
     return parser
 

@@ -253,3 +253,42 @@ def test_bad_parameters_raise():
         pm.load_params(d)
     with pytest.raises(ValueError, match="does not exist"):
         pm.load_params("/nonexistent/planetary.toml")
+
+
+def test_derived_stiffness_matches_appendix_3a3_blocks():
+    """The energy-derived K against the hand-written blocks of thesis App. 3.A.3 (Eqs. 3.75-3.80).
+
+    Resolved: K_C prints psi_sp,n where psi_n is meant, harmless since it appears only in sin^2 + cos^2 = 1;
+    the K_Qn sign pattern (flagged as suspect) is what the planet-bearing energy gives. The planet bearing's
+    own diag(k_p, k_p, 0) (Eq. 3.78's companion) is not printed in K_Pn, and the ring-planet coupling K_R
+    (Eq. 3.82) follows the printed Eq. 3.16, which we correct (see test_ring_planet_deflection...)."""
+    d = copy.deepcopy(BASE)
+    d["ring_model"] = "rigid"
+    d["mesh"]["stiffness_variation"] = 0.0
+    p = pm.load_params(d)
+    lay = pm.layout(p)
+    k = np.asarray(pm.structural_stiffness(p, lay) + pm.mean_mesh_stiffness_matrix(p, lay, 0.0))
+    ksp, krp, kp = 16.9e9, 19.2e9, 6.8e9
+    a = math.radians(20.0)
+    sa, ca = np.sin(a), np.cos(a)
+    sun = slice(0, 3)
+    k_s1 = np.zeros((3, 3))
+    k_c = np.zeros((3, 3))
+    for n, psi in enumerate(p.planet_angles()):
+        s, c = np.sin(psi - a), np.cos(psi - a)
+        k_s1 += ksp * np.array([[s * s, -s * c, -s], [-s * c, c * c, c], [-s, c, 1.0]])  # Eq. 3.75
+        k_s2 = ksp * np.array([[sa * s, ca * s, -s], [-sa * c, -ca * c, c], [-sa, -ca, 1.0]])  # Eq. 3.76
+        pl = slice(lay.planet(n, 0), lay.planet(n, 0) + 3)
+        np.testing.assert_allclose(k[sun, pl], k_s2, rtol=1e-12, atol=1e-3)
+        k_pn = ksp * np.array([[sa * sa, ca * sa, -sa], [ca * sa, ca * ca, -ca], [-sa, -ca, 1.0]])  # Eq. 3.77
+        k_pn += krp * np.array([[sa * sa, -ca * sa, -sa], [-ca * sa, ca * ca, ca], [-sa, ca, 1.0]])  # Eq. 3.78
+        np.testing.assert_allclose(k[pl, pl], k_pn + kp * np.diag([1.0, 1.0, 0.0]), rtol=1e-12, atol=1e-3)
+        cs, sn = np.cos(psi), np.sin(psi)
+        k_qn = kp * np.array([[-cs, -sn, 0.0], [sn, -cs, -1.0], [0.0, 0.0, 0.0]])  # Eq. 3.79
+        car = slice(lay.carrier(0), lay.carrier(0) + 3)
+        np.testing.assert_allclose(k[pl, car], k_qn, rtol=1e-12, atol=1e-3)
+        k_c += kp * np.array([[1.0, 0.0, -sn], [0.0, 1.0, cs], [-sn, cs, 1.0]])  # Eq. 3.80
+    bearing = np.diag([100.0, 100.0, 45.8e6 / float(p.sun.radius) ** 2])
+    np.testing.assert_allclose(k[sun, sun], k_s1 + bearing, rtol=1e-12, atol=1e-3)
+    car = slice(lay.carrier(0), lay.carrier(0) + 3)
+    np.testing.assert_allclose(k[car, car], k_c + np.diag([5e9, 5e9, 0.0]), rtol=1e-12, atol=1e-3)

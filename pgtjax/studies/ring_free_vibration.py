@@ -196,7 +196,6 @@ def write_outputs(outdir, **kw) -> list:
     from pathlib import Path
 
     from .. import plots
-    from .ring_moving_load import mode_shape_figure
 
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)

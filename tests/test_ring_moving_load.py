@@ -1,0 +1,166 @@
+"""Tests of the ring under random moving loads (thesis ch. 6): load transfer, validation, dtypes, Monte Carlo
+against the recursion, gradients against finite differences, CLI. A 12-element ring keeps them small."""
+
+import argparse
+import json
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import pgtjax as pg
+from pgtjax import cli_ring
+from pgtjax.models import ring_moving_load as rml
+from pgtjax.models.ring import RingParams
+
+
+def _small(**kw):
+    return rml.default_params(n_elements=12).replace(**kw)
+
+
+def _rigid(ring: RingParams, d):
+    """Nodal DOFs of a rigid translation d = (dx, dy) [m] and of a unit rigid rotation (u_r inward)."""
+    th = 2 * np.pi * np.arange(ring.n_elements) / ring.n_elements
+    trans = np.stack([-(d[0] * np.cos(th) + d[1] * np.sin(th)), -d[0] * np.sin(th) + d[1] * np.cos(th),
+                      np.zeros_like(th)], axis=1).ravel()
+    rot = np.stack([np.zeros_like(th), float(ring.radius) * np.ones_like(th), np.ones_like(th)], axis=1).ravel()
+    return trans, rot
+
+
+def test_load_transfer_is_work_equivalent():
+    p = _small(carrier_speed=7.3, initial_angle=0.4)
+    loads = rml.MovingLoads(p)
+    alpha = float(p.pressure_angle)
+    for t in (0.0, 0.0371, 0.2):
+        f = np.asarray(loads.nodal_forces(t))
+        th = np.asarray(loads.angles(t))
+        fn = np.asarray(loads.deterministic_forces(t))
+        f_r, f_tau = -fn * np.sin(alpha), -fn * np.cos(alpha)  # Eqs. 6.13-6.14, radial positive inward
+        # global force of each load: f_r along -e_r (inward), f_tau along e_theta
+        fx = np.sum(-f_r * np.cos(th) - f_tau * np.sin(th))
+        fy = np.sum(-f_r * np.sin(th) + f_tau * np.cos(th))
+        for d, expected in (((1.0, 0.0), fx), ((0.0, 1.0), fy)):
+            trans, rot = _rigid(p.ring, d)
+            np.testing.assert_allclose(f @ trans, expected, rtol=1e-10, atol=1e-9 * np.abs(fn).sum())
+        _, rot = _rigid(p.ring, (0.0, 0.0))
+        np.testing.assert_allclose(f @ rot, float(p.ring.radius) * np.sum(f_tau), rtol=1e-10)
+        # noise input: column n is b_n times the unit load vector of load n
+        b = np.asarray(loads.noise_matrix(t))
+        trans, _ = _rigid(p.ring, (1.0, 0.0))
+        unit_fx = -(-np.sin(alpha)) * np.cos(th) - (-np.cos(alpha)) * np.sin(th)
+        np.testing.assert_allclose(b.T @ trans, np.asarray(p.noise_intensity) * unit_fx, rtol=1e-10, atol=1e-6)
+
+
+def test_validation_errors():
+    ring = rml.default_params(n_elements=12).ring
+    cases = [
+        (dict(carrier_speed=-1.0), "carrier_speed"),
+        (dict(pressure_angle=2.0), "pressure_angle"),
+        (dict(force_amplitude=-5.0), "force_amplitude"),
+        (dict(noise_intensity=[1.0, 2.0]), "noise_intensity"),
+        (dict(n_loads=0), "n_loads"),
+        (dict(rayleigh_stiffness=-1e-6), "rayleigh_stiffness"),
+        (dict(modal_damping_ratio=-0.1), "modal_damping_ratio"),
+        (dict(mean_force=float("nan")), "mean_force"),
+    ]
+    for kw, name in cases:
+        with pytest.raises(ValueError, match=name):
+            rml.RingMovingLoadParams(ring, **kw)
+    with pytest.raises(ValueError, match="n_modes"):
+        rml.ring_moving_load_system(_small(), n_modes=0)
+    with pytest.raises(ValueError, match="does not exist"):
+        rml.load_params("/nonexistent/ring.toml")
+    with pytest.raises(ValueError, match="multiple of `n_bolts`"):
+        rml.load_params(None, n_elements=10)
+    with pytest.raises(ValueError, match="case"):
+        rml.support_case(_small(), 4)
+
+
+def test_monte_carlo_matches_recursion_dtypes_and_observers():
+    p = _small(carrier_speed=30.0)
+    s = rml.ring_moving_load_system(p, observe_mid=True)
+    for x in (s.mass, s.damping, s.stiffness(0.01), s.load(0.01), s.noise_input(0.01)):
+        assert x.dtype == jnp.float64
+    assert s.dof_names[-2:] == (rml.OBSERVER_NAME, rml.MID_NAME)
+    u0, v0 = rml.static_initial_state(s)
+    kw = dict(dt=2e-4, n_steps=60, save_every=20, initial_displacement=u0, initial_velocity=v0)
+    sl = pg.solve_moments(s, **kw)
+    assert sl.mean_u.dtype == jnp.float64 and sl.std_u.dtype == jnp.float64
+    # observer rows equal the interpolated contact point and the mid-node DOF
+    from pgtjax.models.ring import ring_displacement_at
+
+    n = p.ring.n_dof
+    for k, t in enumerate(np.asarray(sl.times)):
+        u = sl.mean_u[k]
+        ur = float(ring_displacement_at(p.ring, rml.contact_angle(p, t), u[:n])[0])
+        assert abs(float(u[sl.dof(rml.OBSERVER_NAME)]) - ur) <= 1e-7 * float(jnp.max(jnp.abs(u[:n])))
+    mid = sl.dof(f"ring_node{rml.mid_node(p.ring)}_radial")
+    np.testing.assert_allclose(sl.std_u[:, sl.dof(rml.MID_NAME)], sl.std_u[:, mid], rtol=1e-6, atol=1e-12)
+    # Monte Carlo of the same discretisation: within 3 standard errors at every saved time
+    mc = pg.monte_carlo(s, n_samples=400, key=jax.random.key(3), progress=False, **kw)
+    assert mc.mean_u.dtype == jnp.float64
+    se_m, se_s = mc.standard_error("u")
+    names = [rml.OBSERVER_NAME, rml.MID_NAME, "ring_node4_tangential", "ring_node7_rotation"]
+    for name in names:
+        j = sl.dof(name)
+        for k in (1, 2, 3):
+            assert abs(float(mc.mean_u[k, j] - sl.mean_u[k, j])) < 3 * float(se_m[k, j]), (name, k)
+            assert abs(float(mc.std_u[k, j] - sl.std_u[k, j])) < 3 * float(se_s[k, j]), (name, k)
+
+
+def test_gradient_matches_finite_differences():
+    p0 = _small(carrier_speed=30.0)
+    mid = f"ring_node{rml.mid_node(p0.ring)}_radial"
+
+    def objective(thickness, k_support):
+        ring = eqx.tree_at(lambda r: (r.thickness, r.k_support_radial), p0.ring, (thickness, k_support))
+        p = eqx.tree_at(lambda q: q.ring, p0, ring)
+        s = rml.ring_moving_load_system(p, observe_contact=False)
+        r = pg.solve_moments(s, dt=2e-4, n_steps=30, save_every=5)
+        return jnp.max(r.std_u[:, r.dof(mid)])  # max over the saved times (its location is stable, see below)
+
+    h0, k0 = float(p0.ring.thickness), float(p0.ring.k_support_radial)
+    grad = jax.jit(jax.grad(objective, argnums=(0, 1)))(h0, k0)
+    objective = jax.jit(objective)
+    for i, (x0, step) in enumerate(((h0, 1e-6 * h0), (k0, 1e-4 * k0))):
+        args = [h0, k0]
+        args[i] = x0 + step
+        fp = float(objective(*args))
+        args[i] = x0 - step
+        fm = float(objective(*args))
+        fd = (fp - fm) / (2 * step)
+        assert math.isfinite(float(grad[i]))
+        np.testing.assert_allclose(float(grad[i]), fd, rtol=1e-5)
+
+
+def _parser():
+    parser = argparse.ArgumentParser(prog="pgtjax")
+    sub = parser.add_subparsers(dest="command")
+    cli_ring.register(sub)
+    return parser
+
+
+def test_cli_smoke(tmp_path, capsys):
+    parser = _parser()
+    args = parser.parse_args(["ring-modal", "--n-elements", "12", "--modes", "4", "--json"])
+    assert args.func(args) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert len(out["modes"]) == 4 and out["modes"][0]["frequency_hz"] > 0
+    args = parser.parse_args(["ring-moving-load", "--n-elements", "12", "--modes", "12", "--revolutions", "0.02",
+                              "--dt", "2e-4", "--samples", "20", "--speeds", "30", "--sweep-speeds", "0",
+                              "--supports", "3", "--out", str(tmp_path), "--quiet"])
+    assert args.func(args) == 0
+    assert (tmp_path / "summary.json").is_file() and (tmp_path / "fig6_7_sweep.png").exists() is False
+    assert (tmp_path / "fig6_4_mid_base.png").is_file() and (tmp_path / "modes_ch6_ring.png").is_file()
+    res, attrs = pg.load_results(tmp_path / "base_sl.npz")
+    assert rml.MID_NAME in res.dof_names and attrs["carrier_speed_rad_s"] == 2.8
+    capsys.readouterr()
+    # a bad input is a clear error with exit code 2
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[ring]\nouter_radius = 0.5\n")
+    args = parser.parse_args(["ring-modal", "--params", str(bad)])
+    assert args.func(args) == 2
+    assert "pgtjax: error:" in capsys.readouterr().err
