@@ -37,6 +37,9 @@ from .results import MomentResult
 from .system import Observables, System, validate_system, validate_time_grid
 
 
+_DENSE_PHI_MAX_DOF = 16  # below this size the covariance update forms Phi explicitly (overhead-bound regime)
+
+
 class _StepData(NamedTuple):
     """Contact-space quantities of one step that do not depend on the step-end linearization.
 
@@ -233,25 +236,39 @@ def _moment_step(system: System, carry: _Carry, t1, h, criterion, noise_scheme, 
         ke = lin1.k_e
         reduced = jnp.eye(nc, dtype=ke.dtype) + ke[:, None] * coupling  # I + K_e S
 
-        def solve(rhs):  # Woodbury: (A + G K_e G^T)^-1 = A^-1 - A^-1 G (I + K_e S)^-1 K_e G^T A^-1
-            r2 = rhs if rhs.ndim == 2 else rhs[:, None]
-            out = solve_a(r2) - v0 @ jnp.linalg.solve(reduced, ke[:, None] * (w0 @ r2))
-            return out if rhs.ndim == 2 else out[:, 0]
+        if n <= _DENSE_PHI_MAX_DOF:  # small systems: factorize the linearized K_eff directly
+            lu_eff = jax.scipy.linalg.lu_factor(mats.effective_stiffness + (g1 * ke[None, :]) @ g1.T)
+            solve = lambda rhs: jax.scipy.linalg.lu_solve(lu_eff, rhs)  # noqa: E731
+        else:
+
+            def solve(rhs):  # Woodbury: (A + G K_e G^T)^-1 = A^-1 - A^-1 G (I + K_e S)^-1 K_e G^T A^-1
+                r2 = rhs if rhs.ndim == 2 else rhs[:, None]
+                out = solve_a(r2) - v0 @ jnp.linalg.solve(reduced, ke[:, None] * (w0 @ r2))
+                return out if rhs.ndim == 2 else out[:, 0]
     else:
         z1 = carry.z
         info = _FixedPointInfo(jnp.array(0), jnp.array(0.0), jnp.array(True))
     u_mean = solve(mean_rhs)
-    a_mat = solve(z_mat)  # X_u P, (n, 2n)
-    u_cov = solve(solve(y_mat.T).T)  # X_u P X_u^T
     g_u = solve(mats.noise)  # Gamma_u, (n, draws)
     g_v = (2.0 / h) * g_u + mats.velocity_noise  # Gamma_v
-    a_u, a_v = a_mat[:, :n], a_mat[:, n:]  # X_u P[:, :n], X_u P[:, n:]
-    xpw = (2.0 / h) * a_u + a_v  # X_u P W^T
-    wpw = (4.0 / h**2) * cov[:n, :n] + (2.0 / h) * (cov[:n, n:] + cov[n:, :n]) + cov[n:, n:]
-    p_uu = u_cov + g_u @ g_u.T
-    p_vu = (2.0 / h) * u_cov - xpw.T + g_v @ g_u.T  # Phi_v P Phi_u^T + Gamma_v Gamma_u^T
-    p_vv = (4.0 / h**2) * u_cov - (2.0 / h) * (xpw + xpw.T) + wpw + g_v @ g_v.T
-    new_cov = jnp.block([[p_uu, p_vu.T], [p_vu, p_vv]])
+    if n <= _DENSE_PHI_MAX_DOF:
+        # small systems: one dense Phi P Phi^T (fewer, larger operations win when each is tiny)
+        x_u = solve(jnp.concatenate([e_mat, d_mat], axis=1))  # displacement rows of Phi
+        eye_u = jnp.eye(n, 2 * n, dtype=mean.dtype)
+        eye_v = jnp.eye(n, 2 * n, k=n, dtype=mean.dtype)
+        phi = jnp.concatenate([x_u, (2.0 / h) * (x_u - eye_u) - eye_v], axis=0)
+        gamma = jnp.concatenate([g_u, g_v], axis=0)
+        new_cov = phi @ cov @ phi.T + gamma @ gamma.T
+    else:
+        a_mat = solve(z_mat)  # X_u P, (n, 2n)
+        u_cov = solve(solve(y_mat.T).T)  # X_u P X_u^T
+        a_u, a_v = a_mat[:, :n], a_mat[:, n:]  # X_u P[:, :n], X_u P[:, n:]
+        xpw = (2.0 / h) * a_u + a_v  # X_u P W^T
+        wpw = (4.0 / h**2) * cov[:n, :n] + (2.0 / h) * (cov[:n, n:] + cov[n:, :n]) + cov[n:, n:]
+        p_uu = u_cov + g_u @ g_u.T
+        p_vu = (2.0 / h) * u_cov - xpw.T + g_v @ g_u.T  # Phi_v P Phi_u^T + Gamma_v Gamma_u^T
+        p_vv = (4.0 / h**2) * u_cov - (2.0 / h) * (xpw + xpw.T) + wpw + g_v @ g_v.T
+        new_cov = jnp.block([[p_uu, p_vu.T], [p_vu, p_vv]])
     new_cov = 0.5 * (new_cov + new_cov.T)
     new_mean = jnp.concatenate([u_mean, (2.0 / h) * (u_mean - mean[:n]) - mean[n:]])
     return _Carry(new_mean, new_cov, s1, z1), info

@@ -120,3 +120,35 @@ def test_linear_contact_with_zero_clearance_is_exactly_linear():
         np.testing.assert_allclose(r1.mean_u, r2.mean_u, rtol=1e-10, atol=1e-15)
         np.testing.assert_allclose(r1.std_u, r2.std_u, rtol=1e-10, atol=1e-15)
         np.testing.assert_allclose(r1.mean_delta[:, 0], r2.mean_u[:, 0] - r2.mean_u[:, 1], rtol=1e-9, atol=1e-14)
+
+
+def test_large_system_path_equals_discrete_lyapunov_of_thesis_matrices():
+    """n = 18 > 16 takes the blockwise covariance update with the Woodbury contact solve: its stationary
+    covariance must equal the discrete Lyapunov solution of the thesis's T1, T3 (Eqs. 3.47, 3.49), with the
+    b = 0 contact folded into K."""
+    n, h = 18, 0.01
+    rng = np.random.default_rng(4)
+    m = np.diag(rng.uniform(0.5, 2.0, n))
+    k = np.zeros((n, n))
+    for i in range(n - 1):  # spring chain, grounded at both ends
+        k[i : i + 2, i : i + 2] += 300.0 * np.array([[1, -1], [-1, 1]])
+    k[0, 0] += 300.0
+    k[-1, -1] += 300.0
+    c = 0.02 * k + 0.5 * m
+    b = np.zeros((n, 1))
+    b[3, 0] = 1.0
+    g = np.zeros((n, 1))
+    g[5, 0], g[12, 0] = 1.0, -1.0
+    kc = 150.0
+    system = pg.System(mass=m, stiffness=k, damping=c, noise_input=b, spectral_density=0.1,
+                       contacts=pg.Contacts(direction=g, stiffness=[kc], clearance=[0.0]))
+    res = pg.solve_moments(system, dt=h, n_steps=3000, save_every=3000, noise_scheme="newmark")
+    k_all = k + kc * g @ g.T
+    bs = b * np.sqrt(2 * np.pi * 0.1)
+    n1 = np.block([[c + h / 2 * k_all, m], [m, -h / 2 * m]])
+    n2 = np.block([[c - h / 2 * k_all, m], [m, h / 2 * m]])
+    z = np.zeros_like(bs)
+    t1 = np.linalg.solve(n1, n2)
+    t3 = np.linalg.solve(n1, np.block([[np.sqrt(h) * bs, z], [z, bs * h * np.sqrt(h) / np.sqrt(12.0)]]))
+    p_disc = linalg.solve_discrete_lyapunov(t1, t3 @ t3.T)
+    np.testing.assert_allclose(np.concatenate([res.std_u[-1], res.std_v[-1]]), np.sqrt(np.diag(p_disc)), rtol=1e-8)
