@@ -9,45 +9,34 @@ import time
 from pathlib import Path
 
 from . import cli_back_to_back, cli_ring
+from ._cli_types import csv_floats, nonneg_int, positive_float
 
 
-def _positive_int(text):
-    value = int(text)
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
-    return value
 
 
-def _positive_float(text):
-    value = float(text)
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"must be > 0, got {value}")
-    return value
 
 
 def _add_gear_pair_options(p: argparse.ArgumentParser, quick: bool) -> None:
     p.add_argument("--params", type=Path, default=None,
                    help="gear-pair parameter file (TOML, layout of pgtjax/params/gear_pair.toml); "
                         "default: the embedded thesis Table 4.1 set")
-    p.add_argument("--samples", type=_positive_int, default=2000 if quick else 20_000,
+    p.add_argument("--samples", type=nonneg_int, default=2000 if quick else 20_000,
                    help="Monte Carlo samples per regime (0 skips MC; default %(default)s)")
-    p.add_argument("--dt", type=_positive_float, default=1e-5, help="time step in s (default %(default)s)")
-    p.add_argument("--t-end", type=_positive_float, default=0.04, help="simulated time in s (default %(default)s)")
-    p.add_argument("--saves", type=_positive_int, default=80, help="number of saved times (default %(default)s)")
+    p.add_argument("--dt", type=positive_float, default=1e-5, help="time step in s (default %(default)s)")
+    p.add_argument("--t-end", type=positive_float, default=0.04, help="simulated time in s (default %(default)s)")
+    p.add_argument("--saves", type=nonneg_int, default=80, help="number of saved times (default %(default)s)")
     p.add_argument("--criteria", default="force,energy",
                    help="comma-separated SL criteria among force, energy, energy_origin (default %(default)s)")
     p.add_argument("--pdf-times", default="0.03",
                    help="comma-separated times in s for the PDF of the mesh deflection (default %(default)s)")
     p.add_argument("--seed", type=int, default=0, help="PRNG seed of the Monte Carlo (default %(default)s)")
-    p.add_argument("--chunk-size", type=_positive_int, default=10_000,
+    p.add_argument("--chunk-size", type=nonneg_int, default=10_000,
                    help="MC samples per compiled batch; bounds memory (default %(default)s)")
     p.add_argument("--out", type=Path, default=None,
                    help="output folder (default: pgtjax-output/gear_pair)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
-def _csv_floats(text: str) -> tuple[float, ...]:
-    return tuple(float(x) for x in text.split(",") if x.strip())
 
 
 def _run_gear_pair(args) -> int:
@@ -65,7 +54,7 @@ def _run_gear_pair(args) -> int:
     start = time.perf_counter()
     result = study.run_study(
         params, regimes=regimes, criteria=criteria, n_samples=args.samples, dt=args.dt, t_end=args.t_end,
-        n_saves=args.saves, pdf_times=_csv_floats(args.pdf_times), key=jax.random.key(args.seed),
+        n_saves=args.saves, pdf_times=csv_floats(args.pdf_times), key=jax.random.key(args.seed),
         chunk_size=args.chunk_size, progress=not args.quiet,
     )
     written = study.write_outputs(result, out)
@@ -80,7 +69,7 @@ def _run_step_study(args) -> int:
     from .studies import gear_pair as study
 
     params = gp.default_params() if args.params is None else gp.load_params(args.params)
-    rows = study.step_convergence(params, dts=_csv_floats(args.dts), t_end=args.t_end)
+    rows = study.step_convergence(params, dts=csv_floats(args.dts), t_end=args.t_end)
     if args.json:
         print(json.dumps(rows, indent=2))
     else:
@@ -112,19 +101,19 @@ def _add_planetary_options(p: argparse.ArgumentParser, quick: bool) -> None:
     p.add_argument("--params", type=Path, default=None,
                    help="planetary parameter file (TOML, layout of pgtjax/params/planetary.toml); default: the "
                         "embedded thesis Tables 3.1-3.2 set")
-    p.add_argument("--samples", type=_positive_int, default=300 if quick else 100_000,
+    p.add_argument("--samples", type=nonneg_int, default=300 if quick else 100_000,
                    help="Monte Carlo samples (0 skips MC; default %(default)s; the thesis used 100,000)")
-    p.add_argument("--periods", type=_positive_float, default=1.0, help="carrier periods simulated (default 1)")
-    p.add_argument("--dt", type=_positive_float, default=0.0027, help="time step in s (thesis: 0.0027)")
-    p.add_argument("--saves", type=_positive_int, default=200, help="saved times (default %(default)s)")
+    p.add_argument("--periods", type=positive_float, default=1.0, help="carrier periods simulated (default 1)")
+    p.add_argument("--dt", type=positive_float, default=0.0027, help="time step in s (thesis: 0.0027)")
+    p.add_argument("--saves", type=nonneg_int, default=200, help="saved times (default %(default)s)")
     p.add_argument("--criteria", default="force", help="comma-separated SL criteria (force, energy, energy_origin)")
     p.add_argument("--ring-model", choices=("elastic", "rigid"), default=None,
                    help="override the parameter file's ring model")
-    p.add_argument("--elements", type=_positive_int, default=None, help="override the number of ring elements")
+    p.add_argument("--elements", type=nonneg_int, default=None, help="override the number of ring elements")
     p.add_argument("--no-sweeps", action="store_true", help="skip the rim-thickness and support studies")
     p.add_argument("--no-sensitivities", action="store_true", help="skip the autodiff sensitivities")
     p.add_argument("--seed", type=int, default=0, help="PRNG seed of the Monte Carlo")
-    p.add_argument("--chunk-size", type=_positive_int, default=2000, help="MC samples per compiled batch")
+    p.add_argument("--chunk-size", type=nonneg_int, default=2000, help="MC samples per compiled batch")
     p.add_argument("--out", type=Path, default=None, help="output folder (default: pgtjax-output/planetary)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
 
@@ -221,7 +210,7 @@ def build_parser() -> argparse.ArgumentParser:
     pmodal = sub.add_parser("planetary-modal", help="natural frequencies and mode types of the planetary model")
     pmodal.add_argument("--params", type=Path, default=None, help="planetary parameter file (TOML)")
     pmodal.add_argument("--ring-model", choices=("elastic", "rigid"), default=None, help="override the ring model")
-    pmodal.add_argument("--elements", type=_positive_int, default=None, help="override the number of ring elements")
+    pmodal.add_argument("--elements", type=nonneg_int, default=None, help="override the number of ring elements")
     pmodal.add_argument("--json", action="store_true", help="print JSON instead of a table")
     pmodal.set_defaults(func=_run_planetary_modal)
 
@@ -232,7 +221,7 @@ def build_parser() -> argparse.ArgumentParser:
     step = sub.add_parser("gear-pair-step", help="time-step convergence study of the gear-pair SL moments")
     step.add_argument("--params", type=Path, default=None, help="gear-pair parameter file (TOML)")
     step.add_argument("--dts", default="4e-5,2e-5,1e-5,5e-6,2.5e-6", help="comma-separated steps in s")
-    step.add_argument("--t-end", type=_positive_float, default=0.04, help="simulated time in s")
+    step.add_argument("--t-end", type=positive_float, default=0.04, help="simulated time in s")
     step.add_argument("--json", action="store_true", help="print JSON instead of a table")
     step.set_defaults(func=_run_step_study)
 
@@ -261,7 +250,7 @@ def main(argv=None) -> int:
         return 0
     try:
         return args.func(args)
-    except ValueError as err:  # bad input: a clear message, no traceback
+    except (ValueError, argparse.ArgumentTypeError) as err:  # bad input: a clear message, no traceback
         print(f"pgtjax: error: {err}", file=sys.stderr)
         return 2
 

@@ -10,26 +10,14 @@ import json
 import time
 from pathlib import Path
 
-
-def _positive_float(text):
-    value = float(text)
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"must be > 0, got {value}")
-    return value
+from ._cli_types import nonneg_float as _nonnegative_float, positive_float as _positive_float
+from ._cli_types import positive_int as _positive_int
 
 
-def _nonnegative_float(text):
-    value = float(text)
-    if not value >= 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
-    return value
 
 
-def _positive_int(text):
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
-    return value
+
+
 
 
 def _load(args):

@@ -11,7 +11,7 @@ import jax.numpy as jnp
 
 from .newmark import initial_sample_state, sample_step, snapshot
 from .results import Trajectory
-from .system import System, validate_system, validate_time_grid
+from .system import System, initial_state, validate_system, validate_time_grid
 
 
 def simulate(
@@ -28,13 +28,7 @@ def simulate(
     ``t0 + k * save_every * dt``. The noise input ``B`` is ignored."""
     validate_system(system, t0)
     validate_time_grid(dt, n_steps, save_every)
-    if n_steps % save_every:
-        raise ValueError(f"`n_steps` ({n_steps}) must be a multiple of `save_every` ({save_every})")
-    n = system.n_dof
-    u0 = jnp.zeros(n) if initial_displacement is None else jnp.asarray(initial_displacement, jnp.float64)
-    v0 = jnp.zeros(n) if initial_velocity is None else jnp.asarray(initial_velocity, jnp.float64)
-    if u0.shape != (n,) or v0.shape != (n,):
-        raise ValueError(f"`initial_displacement` and `initial_velocity` must have shape ({n},)")
+    u0, v0 = initial_state(system, initial_displacement, initial_velocity)
     return _simulate_jit(
         system, jnp.asarray(t0, jnp.float64), jnp.asarray(dt, jnp.float64), u0, v0,
         n_steps=n_steps, save_every=save_every,

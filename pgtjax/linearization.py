@@ -34,7 +34,7 @@ from ._numerics import safe_sqrt
 from .contact import check_criterion
 from .newmark import Snapshot, check_noise_scheme, snapshot, step_matrices
 from .results import MomentResult
-from .system import Observables, System, validate_system, validate_time_grid
+from .system import Observables, System, initial_state, validate_system, validate_time_grid
 
 
 _DENSE_PHI_MAX_DOF = 16  # below this size the covariance update forms Phi explicitly (overhead-bound regime)
@@ -315,19 +315,13 @@ def solve_moments(
     validate_time_grid(dt, n_steps, save_every)
     check_criterion(criterion)
     check_noise_scheme(noise_scheme)
-    if n_steps % save_every:
-        raise ValueError(f"`n_steps` ({n_steps}) must be a multiple of `save_every` ({save_every})")
     n = system.n_dof
-    u0 = jnp.zeros(n) if initial_displacement is None else jnp.asarray(initial_displacement, jnp.float64)
-    v0 = jnp.zeros(n) if initial_velocity is None else jnp.asarray(initial_velocity, jnp.float64)
+    u0, v0 = initial_state(system, initial_displacement, initial_velocity)
     p0 = jnp.zeros((2 * n, 2 * n)) if initial_covariance is None else jnp.asarray(initial_covariance, jnp.float64)
-    for name, value, shape in (
-        ("initial_displacement", u0, (n,)), ("initial_velocity", v0, (n,)), ("initial_covariance", p0, (2 * n, 2 * n))
-    ):
-        if value.shape != shape:
-            raise ValueError(f"`{name}` must have shape {shape}, got {value.shape}")
-        if not isinstance(value, jax.core.Tracer) and not np.all(np.isfinite(np.asarray(value))):
-            raise ValueError(f"`{name}` must be finite")
+    if p0.shape != (2 * n, 2 * n):
+        raise ValueError(f"`initial_covariance` must have shape {(2 * n, 2 * n)}, got {p0.shape}")
+    if not isinstance(p0, jax.core.Tracer) and not np.all(np.isfinite(np.asarray(p0))):
+        raise ValueError("`initial_covariance` must be finite")
     return _solve_moments_jit(
         system, jnp.asarray(t0, jnp.float64), jnp.asarray(dt, jnp.float64), u0, v0, p0,
         n_steps=n_steps, save_every=save_every, criterion=criterion, noise_scheme=noise_scheme,

@@ -21,7 +21,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from .newmark import (
-    SampleState,
     check_noise_scheme,
     initial_sample_state,
     noise_dimension,
@@ -29,7 +28,7 @@ from .newmark import (
     snapshot,
 )
 from .results import MonteCarloResult
-from .system import Observables, System, validate_system, validate_time_grid
+from .system import Observables, System, initial_state, validate_system, validate_time_grid
 
 try:  # progress bars are a convenience, not a requirement
     from tqdm.auto import tqdm
@@ -155,17 +154,12 @@ def monte_carlo(
     validate_system(system, t0)
     validate_time_grid(dt, n_steps, save_every)
     check_noise_scheme(noise_scheme)
-    if n_steps % save_every:
-        raise ValueError(f"`n_steps` ({n_steps}) must be a multiple of `save_every` ({save_every})")
     if not isinstance(n_samples, int | np.integer) or n_samples < 2:
         raise ValueError(f"`n_samples` must be an integer >= 2, got {n_samples!r}")
     if not isinstance(chunk_size, int | np.integer) or chunk_size < 1:
         raise ValueError(f"`chunk_size` must be an integer >= 1, got {chunk_size!r}")
     n = system.n_dof
-    u0 = jnp.zeros(n) if initial_displacement is None else jnp.asarray(initial_displacement, jnp.float64)
-    v0 = jnp.zeros(n) if initial_velocity is None else jnp.asarray(initial_velocity, jnp.float64)
-    if u0.shape != (n,) or v0.shape != (n,):
-        raise ValueError(f"`initial_displacement` and `initial_velocity` must have shape ({n},)")
+    u0, v0 = initial_state(system, initial_displacement, initial_velocity)
     if initial_covariance is None:
         init_factor = jnp.zeros((2 * n, 0))
     else:

@@ -274,7 +274,7 @@ def validate_system(system: System, t0: float = 0.0) -> None:
 
 
 def validate_time_grid(dt, n_steps, save_every: int = 1) -> None:
-    """``dt`` > 0 s and finite, ``n_steps`` >= 1, ``save_every`` >= 1 (integers)."""
+    """``dt`` > 0 s and finite, ``n_steps`` >= 1, ``save_every`` >= 1 (integers) dividing ``n_steps``."""
     if not isinstance(dt, jax.core.Tracer):
         if not np.isfinite(float(dt)) or float(dt) <= 0.0:
             raise ValueError(f"`dt` must be a finite time step > 0 s, got {dt!r}")
@@ -282,3 +282,18 @@ def validate_time_grid(dt, n_steps, save_every: int = 1) -> None:
         raise ValueError(f"`n_steps` must be an integer >= 1, got {n_steps!r}")
     if not isinstance(save_every, int | np.integer) or save_every < 1:
         raise ValueError(f"`save_every` must be an integer >= 1, got {save_every!r}")
+    if n_steps % save_every:
+        raise ValueError(f"`n_steps` ({n_steps}) must be a multiple of `save_every` ({save_every})")
+
+
+def initial_state(system: System, initial_displacement=None, initial_velocity=None):
+    """Validated mean initial displacement and velocity, (n,) float64 each (default 0)."""
+    n = system.n_dof
+    out = []
+    for name, value in (("initial_displacement", initial_displacement), ("initial_velocity", initial_velocity)):
+        value = jnp.zeros(n) if value is None else jnp.asarray(value, jnp.float64)
+        if value.shape != (n,):
+            raise ValueError(f"`{name}` must have shape ({n},), got {value.shape}")
+        _check_finite(name, value)
+        out.append(value)
+    return tuple(out)

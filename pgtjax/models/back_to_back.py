@@ -95,7 +95,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import tomllib
 from pathlib import Path
 from typing import NamedTuple
 
@@ -277,14 +276,6 @@ def validate(p: BackToBackParams) -> None:
         raise ValueError(f"`table_points` must be an integer in [16, 100000]; got {p.table_points!r}")
 
 
-def _read_toml(path) -> dict:
-    try:
-        with open(path, "rb") as fh:
-            return tomllib.load(fh)
-    except FileNotFoundError:
-        raise ValueError(f"parameter file not found: {path}") from None
-    except tomllib.TOMLDecodeError as err:
-        raise ValueError(f"parameter file {path} is not valid TOML: {err}") from None
 
 
 def load_params(path: str | Path | None = None, **overrides) -> BackToBackParams:
@@ -293,7 +284,7 @@ def load_params(path: str | Path | None = None, **overrides) -> BackToBackParams
     ``overrides`` replace fields of :class:`BackToBackParams` (e.g. ``sun_torque=200.0``).
     """
     path = _params.path("back_to_back.toml") if path is None else Path(path)
-    data = _read_toml(path)
+    data = _params.read_toml(path)
     try:
         meshes = ms.back_to_back_meshes(path)
         g, b, d, run = data["gears"], data["bench"], data["damping"], data["run_up"]

@@ -20,7 +20,6 @@ highest natural frequency of (M, K) (Rayleigh fit). Both may be given directly i
 
 from __future__ import annotations
 
-import tomllib
 from pathlib import Path
 
 import equinox as eqx
@@ -124,21 +123,12 @@ def default_params() -> GearPairParams:
     return load_params(_params.path("gear_pair.toml"))
 
 
-def _read_toml(path) -> dict:
-    path = Path(path)
-    if not path.is_file():
-        raise ValueError(f"parameter file `{path}` does not exist")
-    try:
-        with open(path, "rb") as fh:
-            return tomllib.load(fh)
-    except tomllib.TOMLDecodeError as err:
-        raise ValueError(f"parameter file `{path}` is not valid TOML: {err}") from None
 
 
 def load_params(source) -> GearPairParams:
     """Read a gear-pair parameter file (TOML, same layout as the embedded ``gear_pair.toml``) or a dict."""
     if isinstance(source, (str, Path)):
-        data = _read_toml(source)
+        data = _params.read_toml(source)
     else:
         data = dict(source)
     try:
@@ -167,7 +157,7 @@ def load_params(source) -> GearPairParams:
 def load_regimes(source=None) -> list[tuple[str, float, float]]:
     """The ``[regimes]`` table of a parameter file: ``[(name, T_in, T_out), ...]`` (N m)."""
     path = _params.path("gear_pair.toml") if source is None else source
-    r = _read_toml(path).get("regimes")
+    r = _params.read_toml(path).get("regimes")
     if r is None:
         raise ValueError(f"{path} has no [regimes] table")
     return [(str(n), float(a), float(b)) for n, a, b in zip(r["names"], r["torque_in"], r["torque_out"])]

@@ -49,7 +49,6 @@ springs at their mean stiffness), or modal damping ratios (``model = "modal"``).
 from __future__ import annotations
 
 import math
-import tomllib
 from pathlib import Path
 
 import equinox as eqx
@@ -159,15 +158,6 @@ def _f(x):
     return jnp.asarray(x, dtype=jnp.float64)
 
 
-def _read(path) -> dict:
-    path = Path(path)
-    if not path.is_file():
-        raise ValueError(f"parameter file `{path}` does not exist")
-    try:
-        with open(path, "rb") as fh:
-            return tomllib.load(fh)
-    except tomllib.TOMLDecodeError as err:
-        raise ValueError(f"parameter file `{path}` is not valid TOML: {err}") from None
 
 
 def default_params(**ring_overrides) -> PlanetaryParams:
@@ -180,7 +170,7 @@ def load_params(source, **overrides) -> PlanetaryParams:
 
     ``overrides`` replace top-level choices: ``ring_model``, ``n_elements``, ``rim_thickness``.
     """
-    data = _read(source) if isinstance(source, str | Path) else dict(source)
+    data = _params.read_toml(source) if isinstance(source, str | Path) else dict(source)
     try:
         s, p, c, r, m, w, d = (data[k] for k in ("sun", "planet", "carrier", "ring", "mesh", "wind", "damping"))
         n_planets = int(data.get("n_planets", 3))

@@ -59,7 +59,6 @@ Units: SI (m, kg, N, s, rad); nodal rotations in rad, nodal moments in N m.
 from __future__ import annotations
 
 import math
-import tomllib
 from pathlib import Path
 
 import equinox as eqx
@@ -466,15 +465,6 @@ SUPPORT_CASES = {
 }
 
 
-def _read_toml(path) -> dict:
-    path = Path(path)
-    if not path.is_file():
-        raise ValueError(f"parameter file `{path}` does not exist")
-    try:
-        with open(path, "rb") as fh:
-            return tomllib.load(fh)
-    except tomllib.TOMLDecodeError as err:
-        raise ValueError(f"parameter file `{path}` is not valid TOML: {err}") from None
 
 
 def load_params(source=None, *, n_elements: int | None = None, support: int | None = None) -> RingMovingLoadParams:
@@ -485,7 +475,7 @@ def load_params(source=None, *, n_elements: int | None = None, support: int | No
     """
     if source is None:
         source = _params.path("ring_ch6.toml")
-    data = _read_toml(source) if isinstance(source, str | Path) else dict(source)
+    data = _params.read_toml(source) if isinstance(source, str | Path) else dict(source)
     try:
         r, s, ld, d = data["ring"], data["supports"], data["loads"], data.get("damping", {})
         L = int(r["n_elements"]) if n_elements is None else int(n_elements)
