@@ -204,7 +204,7 @@ def _record(system, carry: _Carry, criterion, info: _FixedPointInfo, t, observab
     )
 
 
-def _moment_step(system: System, carry: _Carry, t1, h, criterion, noise_scheme, rtol, max_iter):
+def _moment_step(system: System, carry: _Carry, t1, h, criterion, noise_scheme, rtol, max_iter, lu_const=None):
     """One step of the recursion. The covariance update ``Phi P Phi^T + Gamma Gamma^T`` is done blockwise
     from ``Z = [E D] P`` and ``A = K_eff^-1 Z`` (Phi itself is never formed): with ``X_u = K_eff^-1 [E D]``
     the displacement rows of Phi, ``X_u P = A``, ``X_u P X_u^T = K_eff^-1 Z [E D]^T K_eff^-T`` and the velocity
@@ -220,7 +220,8 @@ def _moment_step(system: System, carry: _Carry, t1, h, criterion, noise_scheme, 
     y_mat = z_mat[:, :n] @ e_mat.T + z_mat[:, n:] @ d_mat.T  # [E D] P [E D]^T, (n, n)
     mean_rhs = e_mat @ mean[:n] + d_mat @ mean[n:] + f0_lin + s1.load
     noise_cov = mats.noise @ mats.noise.T
-    lu = jax.scipy.linalg.lu_factor(mats.effective_stiffness)  # A: K_eff without the contacts
+    # A: K_eff without the contacts; factorized once per run when K and C are constant (lu_const)
+    lu = jax.scipy.linalg.lu_factor(mats.effective_stiffness) if lu_const is None else lu_const
     solve_a = lambda rhs: jax.scipy.linalg.lu_solve(lu, rhs)  # noqa: E731
     solve = solve_a
     if nc:
@@ -340,11 +341,15 @@ def _solve_moments_jit(
     first = _record(system, carry, criterion, _FixedPointInfo(jnp.array(0), jnp.array(0.0), jnp.array(True)), t0,
                     observables)
     n_blocks = n_steps // save_every
+    lu_const = None
+    if not callable(system.stiffness) and not callable(system.damping):
+        # K_eff without contacts is then time-invariant: factorize it once (and differentiate the LU once)
+        lu_const = jax.scipy.linalg.lu_factor(system.stiffness + (2.0 / dt) * system.damping + (4.0 / dt**2) * system.mass)
 
     def block(carry, block_index):
         def inner(c, j):
             t1 = t0 + dt * (block_index * save_every + j + 1)
-            c, info = _moment_step(system, c, t1, dt, criterion, noise_scheme, rtol, max_iter)
+            c, info = _moment_step(system, c, t1, dt, criterion, noise_scheme, rtol, max_iter, lu_const)
             return c, info
 
         carry, infos = jax.lax.scan(inner, carry, jnp.arange(save_every))
