@@ -13,14 +13,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import statistics
 import time
 from pathlib import Path
 
 import jax
 import numpy as np
+
+from _common import machine
 
 import pgtjax as pg
 from pgtjax.models import back_to_back as bb
@@ -30,24 +30,6 @@ DT = 1e-4
 T_END = 1.0
 
 
-def machine() -> dict:
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo") as fh:
-            names = [line.split(":", 1)[1].strip() for line in fh if line.startswith("model name")]
-        cpu = names[0] if names else cpu
-    except OSError:
-        pass
-    return dict(
-        platform=platform.platform(),
-        python=platform.python_version(),
-        cpu=cpu,
-        cpu_count=os.cpu_count(),
-        affinity=len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None,
-        jax=jax.__version__,
-        backend=jax.default_backend(),
-        devices=[str(d) for d in jax.devices()],
-    )
 
 
 def main(argv=None) -> int:

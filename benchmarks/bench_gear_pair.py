@@ -12,7 +12,6 @@ import argparse
 import time
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 from _common import timed, write
 
@@ -49,7 +48,7 @@ def numpy_monte_carlo(system_params, n_samples, n_steps, dt, rng, noise=True):
         u, v = np.zeros(3), np.zeros(3)
         f0 = 0.0
         for i in range(n_steps):
-            t0, t1 = i * dt, (i + 1) * dt
+            t1 = (i + 1) * dt
             k1 = kmesh(t1)
             keff = Ks + (2 / dt) * C + (4 / dt**2) * M
             rhs = ((4 / dt**2) * M + (2 / dt) * C - Ks) @ u + (4 / dt) * M @ v + 2 * F - g * f0

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import argparse
 import resource
-import time
 
 import equinox as eqx
 import jax

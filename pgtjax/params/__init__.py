@@ -14,7 +14,7 @@ def read_toml(path) -> dict:
     """Read a parameter file; a missing file or invalid TOML is a ``ValueError`` naming the file."""
     path = Path(path)
     if not path.is_file():
-        raise ValueError(f"parameter file `{path}` does not exist")
+        raise ValueError(f"parameter file `{path}` not found: it does not exist")
     try:
         with open(path, "rb") as fh:
             return tomllib.load(fh)
