@@ -412,7 +412,17 @@ def mesh_stiffness(p: PlanetaryParams) -> MeshStiffness:
 # ------------------------------------------------------------------------------------------ assembly
 
 
-def mass_matrix(p: PlanetaryParams, lay: Layout):
+def ring_block(p: PlanetaryParams):
+    """(M, K) of the ring DOFs: the assembled curved-beam ring with its bolts, or the rigid ring body."""
+    if p.ring_model == "elastic":
+        return ring_matrices(p.ring)
+    rr = p.rigid_ring
+    m = jnp.diag(jnp.stack([rr.mass, rr.mass, rr.inertia / rr.radius**2]))
+    k = jnp.diag(jnp.stack([rr.bearing, rr.bearing, rr.torsional / rr.radius**2]))
+    return m, k
+
+
+def mass_matrix(p: PlanetaryParams, lay: Layout, ring=None):
     """Eqs. 3.68-3.70: diag(m, m, I/r^2) per lumped body, the ring's mass, a2 T_v^2 for the filter."""
     diag = jnp.zeros(lay.n_dof)
     for idx, body in [((0, 1, 2), p.sun)] + [((lay.planet(k, 0), lay.planet(k, 1), lay.planet(k, 2)), p.planet)
@@ -423,15 +433,11 @@ def mass_matrix(p: PlanetaryParams, lay: Layout):
     diag = diag.at[lay.chi].set(p.wind.a2 * tv**2)
     mass = jnp.diag(diag)
     rs = slice(lay.ring_start, lay.ring_start + lay.n_ring)
-    if p.ring_model == "elastic":
-        m_ring, _ = ring_matrices(p.ring)
-    else:
-        rr = p.rigid_ring
-        m_ring = jnp.diag(jnp.stack([rr.mass, rr.mass, rr.inertia / rr.radius**2]))
+    m_ring, _ = ring_block(p) if ring is None else ring
     return mass.at[rs, rs].set(m_ring)
 
 
-def structural_stiffness(p: PlanetaryParams, lay: Layout):
+def structural_stiffness(p: PlanetaryParams, lay: Layout, ring=None):
     """Bearings, shafts, planet bearings and the ring (with its bolts); no meshes, no wind coupling."""
     k = jnp.zeros((lay.n_dof, lay.n_dof))
     springs = []
@@ -448,11 +454,7 @@ def structural_stiffness(p: PlanetaryParams, lay: Layout):
     for g, stiffness in springs:
         k = k + stiffness * jnp.outer(g, g)
     rs = slice(lay.ring_start, lay.ring_start + lay.n_ring)
-    if p.ring_model == "elastic":
-        _, k_ring = ring_matrices(p.ring)
-    else:
-        rr = p.rigid_ring
-        k_ring = jnp.diag(jnp.stack([rr.bearing, rr.bearing, rr.torsional / rr.radius**2]))
+    _, k_ring = ring_block(p) if ring is None else ring
     k = k.at[rs, rs].add(k_ring)
     return k.at[lay.chi, lay.chi].add(1.0)  # filter: chi + ... = W (Eq. 3.31)
 
@@ -496,8 +498,9 @@ def planetary(p: PlanetaryParams | None = None) -> System:
     p = default_params() if p is None else p
     validate(p)
     lay = layout(p)
-    mass = mass_matrix(p, lay)
-    k_struct = structural_stiffness(p, lay)
+    ring = ring_block(p)  # assembled once for both matrices
+    mass = mass_matrix(p, lay, ring)
+    k_struct = structural_stiffness(p, lay, ring)
     k_mean = k_struct + mean_mesh_stiffness_matrix(p, lay)
     damping = _damping(p, lay, mass, k_mean)
     k_wind, c_wind = _wind_coupling(p, lay)
