@@ -14,10 +14,14 @@ the mean and the covariance separately (equivalent, better conditioned):
 The step's fixed point ``(mu, sigma) = T(mu, sigma)`` of the contact deflections is solved by Newton's method
 (Jacobian by forward-mode autodiff; falls back to a plain fixed-point step when a Newton step is not finite).
 Only the contact-space moments are iterated, by nc x nc algebra (push-through identity, see
-``_contact_moments``); the full covariance update is done once per step with one LU of the contact-free
-``K_eff`` and a Woodbury correction for the linearized contacts. Gradients through the converged fixed point use the implicit function theorem
-(a ``custom_jvp`` whose tangent is ``-J^-1 dR/dtheta``; reverse mode transposes it); the iterations themselves
-are not differentiated and cost nothing extra in a forward run.
+``_contact_moments``); the full covariance update is done once per step. Three forms of that update, all
+exact rewritings of the same step: small systems (n <= 16) form Phi densely; when K and C are constant the
+contact-free one-step map is formed once per run and the linearized contacts enter as rank-nc corrections
+(``_moment_step_constant``: dense products only, the fast path for the gear-train models); otherwise one LU
+of the contact-free ``K_eff`` per step with a Woodbury correction for the contacts. Gradients through the
+converged fixed point use the implicit function theorem (a ``custom_jvp`` whose tangent is
+``-J^-1 dR/dtheta``; reverse mode transposes it); the iterations themselves are not differentiated and cost
+nothing extra in a forward run.
 """
 
 from __future__ import annotations
@@ -32,10 +36,17 @@ import numpy as np
 
 from ._numerics import safe_sqrt
 from .contact import check_criterion
-from .newmark import Snapshot, check_noise_scheme, snapshot, step_matrices
+from .newmark import (
+    ConstantPropagator,
+    Snapshot,
+    check_noise_scheme,
+    constant_propagator,
+    noise_matrices,
+    snapshot,
+    step_matrices,
+)
 from .results import MomentResult
 from .system import Observables, System, initial_state, validate_system, validate_time_grid
-
 
 _DENSE_PHI_MAX_DOF = 16  # below this size the covariance update forms Phi explicitly (overhead-bound regime)
 
@@ -99,31 +110,30 @@ def _solve_fixed_point(system, z0, data, criterion, rtol, max_iter):
     nc = system.n_contacts
     law = system.contacts.law
     data_const = jax.lax.stop_gradient(data)
-    eye = jnp.eye(2 * nc, dtype=z0.dtype)
 
-    def residual_and_jacobian(z):
-        r, jvp = jax.linearize(lambda zz: _residual(law, nc, criterion, zz, data_const), z)
-        return r, jax.vmap(jvp, out_axes=1)(eye)
+    def residual(z):
+        return _residual(law, nc, criterion, z, data_const)
 
     def scaled_norm(r, z):
         scale = jnp.abs(z[:nc]) + z[nc:] + data_const.clearance + 1e-300
         return jnp.max(jnp.abs(r) / jnp.concatenate([scale, scale]))
 
     def body(state):
-        z, r, jac, it, _ = state
-        z_newton = z + jnp.linalg.solve(jac, -r)
+        # the Jacobian is formed at the start of an iteration, so none is wasted on the converged point
+        z, r, it, _ = state
+        z_newton = z + jnp.linalg.solve(jax.jacfwd(residual)(z), -r)
         z_new = jnp.where(jnp.all(jnp.isfinite(z_newton)), z_newton, z + r)  # fixed-point step as fallback
         z_new = z_new.at[nc:].set(jnp.maximum(z_new[nc:], 0.0))
-        r_new, jac_new = residual_and_jacobian(z_new)
-        return z_new, r_new, jac_new, it + 1, scaled_norm(r_new, z_new)
+        r_new = residual(z_new)
+        return z_new, r_new, it + 1, scaled_norm(r_new, z_new)
 
     def cond(state):
         *_, it, err = state
         return (it < max_iter) & (err > rtol)
 
     z0 = jax.lax.stop_gradient(z0)
-    r0, jac0 = residual_and_jacobian(z0)
-    z_star, _, _, iters, err = jax.lax.while_loop(cond, body, (z0, r0, jac0, jnp.array(0), scaled_norm(r0, z0)))
+    r0 = residual(z0)
+    z_star, _, iters, err = jax.lax.while_loop(cond, body, (z0, r0, jnp.array(0), scaled_norm(r0, z0)))
     z = _implicit_solution(law, nc, criterion, z_star, data)
     return z, _FixedPointInfo(iters, err, err <= rtol)
 
@@ -260,17 +270,85 @@ def _moment_step(system: System, carry: _Carry, t1, h, criterion, noise_scheme, 
         phi = jnp.concatenate([x_u, (2.0 / h) * (x_u - eye_u) - eye_v], axis=0)
         gamma = jnp.concatenate([g_u, g_v], axis=0)
         new_cov = phi @ cov @ phi.T + gamma @ gamma.T
+        new_cov = 0.5 * (new_cov + new_cov.T)
     else:
         a_mat = solve(z_mat)  # X_u P, (n, 2n)
         u_cov = solve(solve(y_mat.T).T)  # X_u P X_u^T
-        a_u, a_v = a_mat[:, :n], a_mat[:, n:]  # X_u P[:, :n], X_u P[:, n:]
-        xpw = (2.0 / h) * a_u + a_v  # X_u P W^T
-        wpw = (4.0 / h**2) * cov[:n, :n] + (2.0 / h) * (cov[:n, n:] + cov[n:, :n]) + cov[n:, n:]
-        p_uu = u_cov + g_u @ g_u.T
-        p_vu = (2.0 / h) * u_cov - xpw.T + g_v @ g_u.T  # Phi_v P Phi_u^T + Gamma_v Gamma_u^T
-        p_vv = (4.0 / h**2) * u_cov - (2.0 / h) * (xpw + xpw.T) + wpw + g_v @ g_v.T
-        new_cov = jnp.block([[p_uu, p_vu.T], [p_vu, p_vv]])
-    new_cov = 0.5 * (new_cov + new_cov.T)
+        new_cov = _assemble_covariance(cov, a_mat, u_cov, g_u, g_v, h)
+    new_mean = jnp.concatenate([u_mean, (2.0 / h) * (u_mean - mean[:n]) - mean[n:]])
+    return _Carry(new_mean, new_cov, s1, z1), info
+
+
+def _assemble_covariance(cov, a_mat, u_cov, g_u, g_v, h):
+    """``Phi P Phi^T + Gamma Gamma^T`` from the displacement rows ``X_u`` of Phi, given ``a_mat = X_u P``
+    and ``u_cov = X_u P X_u^T``: the velocity rows are ``Phi_v = (2/h) X_u - W``, ``W = [(2/h) I, I]``
+    (the kinematic relation v1 = (2/h)(u1 - u0) - v0), so every block follows without forming Phi."""
+    n = a_mat.shape[0]
+    a_u, a_v = a_mat[:, :n], a_mat[:, n:]  # X_u P[:, :n], X_u P[:, n:]
+    xpw = (2.0 / h) * a_u + a_v  # X_u P W^T
+    wpw = (4.0 / h**2) * cov[:n, :n] + (2.0 / h) * (cov[:n, n:] + cov[n:, :n]) + cov[n:, n:]
+    p_uu = u_cov + g_u @ g_u.T
+    p_vu = (2.0 / h) * u_cov - xpw.T + g_v @ g_u.T  # Phi_v P Phi_u^T + Gamma_v Gamma_u^T
+    p_vv = (4.0 / h**2) * u_cov - (2.0 / h) * (xpw + xpw.T) + wpw + g_v @ g_v.T
+    new_cov = jnp.block([[p_uu, p_vu.T], [p_vu, p_vv]])
+    return 0.5 * (new_cov + new_cov.T)
+
+
+def _moment_step_constant(system: System, carry: _Carry, t1, h, criterion, noise_scheme, rtol, max_iter,
+                          prop: ConstantPropagator):
+    """One step of the recursion when K and C are constant (only the contacts, load and noise input vary).
+
+    The contact-free map ``X = A^-1 [E, D]`` is formed once per run (:func:`constant_propagator`); the
+    linearized contacts at the two ends of the step are rank-nc corrections of it:
+
+        X_a = X - A^-1 G0 [K_e0 G0^T, 0]                (start-of-step contacts, moved into E)
+        X_u = X_a - A^-1 G1 (I + K_e1 S)^-1 K_e1 G1^T X_a  (end-of-step contacts, Woodbury)
+
+    with ``S = G1^T A^-1 G1``. The covariance update then costs two dense products (``X P`` and
+    ``(X_u P) X^T``) and matrix products of width nc, instead of triangular solves per step.
+    """
+    n, nc = system.n_dof, system.n_contacts
+    s0, mean, cov = carry.snap, carry.mean, carry.cov
+    s1 = snapshot(system, t1)
+    noise, v_noise = noise_matrices(system, s0, s1, h, noise_scheme)
+    x, a_inv = prop.x, prop.a_inv
+    xp = x @ cov  # X P, (n, 2n)
+    m_a = x @ mean + a_inv @ (s0.load + s1.load)  # A^-1 (r without contact terms)
+    g_a = a_inv @ noise
+    if nc:
+        g0, g1 = s0.direction, s1.direction
+        law, clearance = system.contacts.law, system.contacts.clearance
+        lin0 = law.linearize(carry.z[:nc], carry.z[nc:], s0.contact_stiffness, clearance, criterion)
+        q0 = lin0.k_e[:, None] * g0.T  # K_e0 G0^T, (nc, n)
+        b0 = a_inv @ g0  # A^-1 G0
+        m_a = m_a - b0 @ (q0 @ mean[:n] + lin0.f_0 - lin0.k_e * carry.z[:nc])
+        xap = xp - b0 @ (q0 @ cov[:n, :])  # X_a P
+        w1 = g1.T @ a_inv  # G1^T A^-1
+        v1 = a_inv @ g1  # A^-1 G1
+        coupling = w1 @ g1
+        gx = g1.T @ x - (w1 @ g0) @ jnp.concatenate([q0, jnp.zeros_like(q0)], axis=1)  # G1^T X_a, (nc, 2n)
+        gxp = gx @ cov
+        wn = w1 @ noise
+        data = _StepData(coupling, g1.T @ m_a, gxp @ gx.T + wn @ wn.T, s1.contact_stiffness, clearance)
+        z1, info = _solve_fixed_point(system, carry.z, data, criterion, rtol, max_iter)
+        lin1 = law.linearize(z1[:nc], z1[nc:], s1.contact_stiffness, clearance, criterion)
+        ke1 = lin1.k_e
+        reduced = jnp.eye(nc, dtype=ke1.dtype) + ke1[:, None] * coupling  # I + K_e1 S
+        f1 = lin1.f_0 - ke1 * z1[:nc]
+        u_mean = m_a - v1 @ jnp.linalg.solve(reduced, ke1 * data.mean + f1)
+        corr = jnp.linalg.solve(reduced, ke1[:, None] * jnp.concatenate([gx, gxp, g1.T @ g_a], axis=1))
+        q1, q1p, q1n = corr[:, : 2 * n], corr[:, 2 * n : 4 * n], corr[:, 4 * n :]
+        a_mat = xap - v1 @ q1p  # X_u P
+        # X_u P X_u^T = a_mat X_a^T - (a_mat Q1^T) V1^T,  a_mat X_a^T = a_mat X^T - (a_mat[:, :n] Q0^T) B0^T
+        u_cov = a_mat @ x.T - (a_mat[:, :n] @ q0.T) @ b0.T - (a_mat @ q1.T) @ v1.T
+        g_u = g_a - v1 @ q1n
+    else:
+        z1 = carry.z
+        info = _FixedPointInfo(jnp.array(0), jnp.array(0.0), jnp.array(True))
+        u_mean, a_mat, g_u = m_a, xp, g_a
+        u_cov = a_mat @ x.T
+    g_v = (2.0 / h) * g_u + v_noise
+    new_cov = _assemble_covariance(cov, a_mat, u_cov, g_u, g_v, h)
     new_mean = jnp.concatenate([u_mean, (2.0 / h) * (u_mean - mean[:n]) - mean[n:]])
     return _Carry(new_mean, new_cov, s1, z1), info
 
@@ -341,16 +419,19 @@ def _solve_moments_jit(
     first = _record(system, carry, criterion, _FixedPointInfo(jnp.array(0), jnp.array(0.0), jnp.array(True)), t0,
                     observables)
     n_blocks = n_steps // save_every
+    # K and C constant: the contact-free step operators are formed once per run (and differentiated once)
+    prop = constant_propagator(system, dt)
     lu_const = None
-    if not callable(system.stiffness) and not callable(system.damping):
-        # K_eff without contacts is then time-invariant: factorize it once (and differentiate the LU once)
-        lu_const = jax.scipy.linalg.lu_factor(system.stiffness + (2.0 / dt) * system.damping + (4.0 / dt**2) * system.mass)
+    if prop is not None and system.n_dof <= _DENSE_PHI_MAX_DOF:
+        k_eff = system.stiffness + (2.0 / dt) * system.damping + (4.0 / dt**2) * system.mass
+        lu_const = jax.scipy.linalg.lu_factor(k_eff)
 
     def block(carry, block_index):
         def inner(c, j):
             t1 = t0 + dt * (block_index * save_every + j + 1)
-            c, info = _moment_step(system, c, t1, dt, criterion, noise_scheme, rtol, max_iter, lu_const)
-            return c, info
+            if prop is not None and lu_const is None:
+                return _moment_step_constant(system, c, t1, dt, criterion, noise_scheme, rtol, max_iter, prop)
+            return _moment_step(system, c, t1, dt, criterion, noise_scheme, rtol, max_iter, lu_const)
 
         carry, infos = jax.lax.scan(inner, carry, jnp.arange(save_every))
         worst = _FixedPointInfo(

@@ -22,6 +22,7 @@ import numpy as np
 
 from .newmark import (
     check_noise_scheme,
+    constant_propagator,
     initial_sample_state,
     noise_dimension,
     sample_step,
@@ -67,6 +68,7 @@ def _chunk(
         x0 = x0 + z @ init_factor.T
     state = initial_sample_state(system, s0, x0[:, :n], x0[:, n:])
     total = jnp.sum(weights)
+    prop = constant_propagator(system, dt)  # None if K or C varies in time
     clearance = system.contact_clearance()
 
     def statistics(state, snap, t):
@@ -104,7 +106,7 @@ def _chunk(
             state, snap0, bad = c
             t1 = t0 + dt * (block_index * save_every + j + 1)
             snap1 = snapshot(system, t1)
-            state, ok = sample_step(system, state, snap0, snap1, dt, step_draws, noise_scheme)
+            state, ok = sample_step(system, state, snap0, snap1, dt, step_draws, noise_scheme, prop)
             bad = bad + jnp.sum(weights * (~ok))
             return (state, snap1, bad), None
 

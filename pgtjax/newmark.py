@@ -82,23 +82,47 @@ class StepMatrices(NamedTuple):
     velocity_noise: jax.Array  # velocity correction per draw (n, n_draws)
 
 
+def noise_matrices(system: System, s0: Snapshot, s1: Snapshot, h, noise_scheme: str):
+    """``([B_N, B_P], velocity correction per draw)`` of one step (module docstring), each (n, n_draws)."""
+    b_s = 0.5 * (s0.noise_input + s1.noise_input)  # B at mid-step (exact for constant B)
+    b_n = (2.0 / jnp.sqrt(h)) * b_s
+    if noise_scheme == "newmark":
+        root12 = jnp.sqrt(12.0)
+        b_p = (4.0 / (root12 * jnp.sqrt(h))) * b_s
+        minv_bs = jnp.linalg.solve(system.mass, b_s)
+        v_noise = jnp.concatenate([jnp.zeros_like(b_n), -(2.0 * jnp.sqrt(h) / root12) * minv_bs], axis=1)
+        return jnp.concatenate([b_n, b_p], axis=1), v_noise
+    return b_n, jnp.zeros_like(b_n)
+
+
 def step_matrices(system: System, s0: Snapshot, s1: Snapshot, h, noise_scheme: str) -> StepMatrices:
     M = system.mass
     c_mid = 0.5 * (s0.damping + s1.damping)
     k_eff = s1.stiffness + (2.0 / h) * c_mid + (4.0 / h**2) * M
     from_u = (4.0 / h**2) * M + (2.0 / h) * c_mid - s0.stiffness
     from_v = (4.0 / h) * M
-    b_s = 0.5 * (s0.noise_input + s1.noise_input)  # B at mid-step (exact for constant B)
-    b_n = (2.0 / jnp.sqrt(h)) * b_s
-    if noise_scheme == "newmark":
-        root12 = jnp.sqrt(12.0)
-        b_p = (4.0 / (root12 * jnp.sqrt(h))) * b_s
-        noise = jnp.concatenate([b_n, b_p], axis=1)
-        minv_bs = jnp.linalg.solve(M, b_s)
-        v_noise = jnp.concatenate([jnp.zeros_like(b_n), -(2.0 * jnp.sqrt(h) / root12) * minv_bs], axis=1)
-    else:
-        noise, v_noise = b_n, jnp.zeros_like(b_n)
+    noise, v_noise = noise_matrices(system, s0, s1, h, noise_scheme)
     return StepMatrices(k_eff, from_u, from_v, noise, v_noise)
+
+
+class ConstantPropagator(NamedTuple):
+    """Step operators of a system whose K and C do not depend on time (contacts excluded), formed once
+    per run: ``A^-1`` with ``A = K + (2/h) C + (4/h^2) M`` (the contact-free K_eff) and
+    ``X = A^-1 [E, D]``, the displacement rows of the contact-free one-step map of ``(u, v)``."""
+
+    a_inv: jax.Array  # (n, n)
+    x: jax.Array  # (n, 2n)
+
+
+def constant_propagator(system: System, h) -> ConstantPropagator | None:
+    """The :class:`ConstantPropagator` of ``system`` for step ``h``, or None if K or C is time-varying."""
+    if callable(system.stiffness) or callable(system.damping):
+        return None
+    M, C, K = system.mass, system.damping, system.stiffness
+    n = M.shape[0]
+    a_inv = jnp.linalg.solve(K + (2.0 / h) * C + (4.0 / h**2) * M, jnp.eye(n, dtype=M.dtype))
+    rhs = jnp.concatenate([(4.0 / h**2) * M + (2.0 / h) * C - K, (4.0 / h) * M], axis=1)
+    return ConstantPropagator(a_inv, a_inv @ rhs)
 
 
 def velocity_update(u0, v0, u1, h):
@@ -146,25 +170,71 @@ def solve_contacts(delta_lin, coupling, k, b, law, *, tol=1e-12, max_iter=50):
     return d, err <= tol
 
 
-def sample_step(system: System, state: SampleState, s0: Snapshot, s1: Snapshot, h, draws, noise_scheme: str):
+_PATTERN_TABLE_MAX_CONTACTS = 8  # 2^8 Jacobian inverses per step at most
+
+
+def solve_contacts_batch(delta_lin, coupling, k, b, law, *, tol=1e-12, max_iter=50):
+    """:func:`solve_contacts` for a batch ``delta_lin`` (batch, nc) sharing ``coupling``, ``k`` and ``b``.
+
+    For a law with on/off stiffness (backlash) the Newton Jacobian ``I + S diag(k * active)`` depends only on
+    the contact pattern, so the inverses of all 2^nc patterns are formed once (nc <= 8) and each sample's
+    Newton step is a table look-up and an nc x nc product; otherwise each sample runs its own Newton solve.
+    Returns ``(delta, converged)`` of shapes (batch, nc) and (batch,).
+    """
+    nc = delta_lin.shape[1]
+    if not law.on_off_stiffness or nc > _PATTERN_TABLE_MAX_CONTACTS:
+        return jax.vmap(lambda dl: solve_contacts(dl, coupling, k, b, law, tol=tol, max_iter=max_iter))(delta_lin)
+    bits = 2 ** jnp.arange(nc)
+    patterns = ((jnp.arange(2**nc)[:, None] & bits[None, :]) > 0).astype(delta_lin.dtype)  # (2^nc, nc)
+    eye = jnp.eye(nc, dtype=delta_lin.dtype)
+    inverses = jnp.linalg.inv(eye[None] + coupling[None] * (patterns * k[None, :])[:, None, :])
+    scale = jnp.abs(delta_lin) + b[None, :] + 1e-300
+
+    def residual(d):
+        return d + law.force(d, k[None, :], b[None, :]) @ coupling.T - delta_lin
+
+    def body(state):
+        d, r, it, _ = state
+        index = jnp.sum(jnp.where((d > b[None, :]) | (d < -b[None, :]), bits[None, :], 0), axis=1)
+        d = d - jnp.einsum("sij,sj->si", inverses[index], r)
+        r = residual(d)
+        return d, r, it + 1, jnp.max(jnp.abs(r) / scale, axis=1)
+
+    def cond(state):
+        _, _, it, err = state
+        return (it < max_iter) & jnp.any(err > tol)
+
+    r0 = residual(delta_lin)
+    err0 = jnp.max(jnp.abs(r0) / scale, axis=1)
+    d, _, _, err = jax.lax.while_loop(cond, body, (delta_lin, r0, jnp.array(0), err0))
+    return d, err <= tol
+
+
+def sample_step(system: System, state: SampleState, s0: Snapshot, s1: Snapshot, h, draws, noise_scheme: str,
+                prop: ConstantPropagator | None = None):
     """Advance a batch of samples of the *nonlinear* system by one step (module docstring).
 
     ``draws`` are the standard normals of the step, (batch, noise_dimension). The solve with ``K_eff`` is
-    done once for all samples (a shared right-hand-side block); per sample only matrix-vector products and the
-    contact-space Newton solve remain. Returns the new state and the per-sample contact-solve flag.
+    done once for all samples (with ``prop``, the contact-free map of a system with constant K and C, once per
+    run); per sample only matrix products and the contact-space Newton solve remain. Returns the new state and
+    the per-sample contact-solve flag.
     """
-    nc = system.n_contacts
-    mats = step_matrices(system, s0, s1, h, noise_scheme)
-    blocks = [mats.from_displacement, mats.from_velocity, (s0.load + s1.load)[:, None]]
+    n, nc = system.n_dof, system.n_contacts
+    noise, v_noise = noise_matrices(system, s0, s1, h, noise_scheme)
+    blocks = [(s0.load + s1.load)[:, None]]
     if draws.shape[1]:
-        blocks.append(mats.noise)
+        blocks.append(noise)
     if nc:
         blocks += [s0.direction, s1.direction]
-    x = jnp.linalg.solve(mats.effective_stiffness, jnp.concatenate(blocks, axis=1))
-    n = system.n_dof
-    x_u, x_v, x_load = x[:, :n], x[:, n : 2 * n], x[:, 2 * n]
-    col = 2 * n + 1
-    u_lin = state.u @ x_u.T + state.v @ x_v.T + x_load[None, :]
+    if prop is None:
+        mats = step_matrices(system, s0, s1, h, noise_scheme)
+        x = jnp.linalg.solve(mats.effective_stiffness, jnp.concatenate(
+            [mats.from_displacement, mats.from_velocity] + blocks, axis=1))
+        x_state, x = x[:, : 2 * n], x[:, 2 * n :]
+    else:
+        x_state, x = prop.x, prop.a_inv @ jnp.concatenate(blocks, axis=1)
+    u_lin = jnp.concatenate([state.u, state.v], axis=1) @ x_state.T + x[None, :, 0]
+    col = 1
     if draws.shape[1]:
         nd = draws.shape[1]
         u_lin = u_lin + draws @ x[:, col : col + nd].T
@@ -181,7 +251,7 @@ def sample_step(system: System, state: SampleState, s0: Snapshot, s1: Snapshot, 
             delta, ok = law.solve_single(delta_lin, coupling[0, 0], k1[None, :], b[None, :])
             ok = ok[:, 0]
         else:
-            delta, ok = jax.vmap(lambda dl: solve_contacts(dl, coupling, k1, b, law))(delta_lin)
+            delta, ok = solve_contacts_batch(delta_lin, coupling, k1, b, law)
         force = system.contacts.law.force(delta, k1[None, :], b[None, :])
         u1 = u_lin - force @ kinv_g1.T
     else:
@@ -189,7 +259,7 @@ def sample_step(system: System, state: SampleState, s0: Snapshot, s1: Snapshot, 
         u1 = u_lin
     v1 = velocity_update(state.u, state.v, u1, h)
     if noise_scheme == "newmark" and draws.shape[1]:
-        v1 = v1 + draws @ mats.velocity_noise.T
+        v1 = v1 + draws @ v_noise.T
     return SampleState(u1, v1, force), ok
 
 

@@ -5,6 +5,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _chains import grounded_spring_chain
 from scipy import integrate
 
 import pgtjax as pg
@@ -126,3 +127,45 @@ def test_initial_covariance_and_observables_agree_with_the_recursion():
     # the observable's moments are those of C(t) u computed from the DOF moments at t0
     np.testing.assert_allclose(ref.mean_obs[0], [0.01, -0.01], rtol=1e-12)
     np.testing.assert_allclose(ref.std_obs[0, 1], np.sqrt(0.01**2 + 0.02**2 + 0.01 * 0.02), rtol=1e-12)
+
+
+def test_pattern_table_contact_solve_equals_per_sample_newton():
+    """Batched backlash solve (Jacobian inverses of all 2^nc contact patterns) vs per-sample Newton."""
+    from pgtjax.newmark import solve_contacts, solve_contacts_batch
+
+    rng = np.random.default_rng(3)
+    nc = 4
+    a = rng.normal(size=(nc, nc))
+    coupling = jnp.asarray(a @ a.T * 1e-3 + 1e-3 * np.eye(nc))  # G^T K_eff^-1 G: symmetric positive definite
+    k = jnp.asarray(rng.uniform(500.0, 1500.0, nc))
+    b = jnp.asarray(rng.uniform(0.5e-3, 2e-3, nc))
+    delta_lin = jnp.asarray(rng.normal(scale=3e-3, size=(400, nc)))  # many samples in the gap, some not
+    law = pg.Backlash()
+    d_table, ok_table = solve_contacts_batch(delta_lin, coupling, k, b, law)
+    d_ref, ok_ref = jax.vmap(lambda dl: solve_contacts(dl, coupling, k, b, law))(delta_lin)
+    assert bool(jnp.all(ok_table)) and bool(jnp.all(ok_ref))
+    open_any = jnp.any(jnp.abs(d_ref) < b[None, :], axis=1)
+    assert 0.1 < float(jnp.mean(open_any)) < 0.9
+    np.testing.assert_allclose(d_table, d_ref, rtol=0, atol=1e-14)
+    residual = d_table + law.force(d_table, k[None, :], b[None, :]) @ coupling.T - delta_lin
+    assert float(jnp.max(jnp.abs(residual))) < 1e-15
+
+
+def test_constant_stiffness_mc_equals_time_function_mc():
+    """Monte Carlo with the once-formed contact-free map (constant K) and with the per-step solve (K as a
+    function of time) draw the same noise and must give the same statistics up to rounding."""
+    n = 18
+    m, k = grounded_spring_chain(n, 400.0, 8)
+    g = np.zeros((n, 2))
+    g[[4, 11], [0, 1]], g[[5, 12], [0, 1]] = 1.0, -1.0
+    noise = np.zeros((n, 1))
+    noise[2, 0] = 1.0
+    common = dict(mass=m, damping=0.01 * k + 0.3 * m, load=np.eye(n)[2] * 2.0, noise_input=noise,
+                  spectral_density=0.05, contacts=pg.Contacts(direction=g, stiffness=[300.0, 300.0],
+                                                               clearance=[0.004, 0.005]))
+    kw = dict(n_samples=200, key=KEY, dt=0.01, n_steps=100, save_every=10, progress=False)
+    a = pg.monte_carlo(pg.System(stiffness=k, **common), **kw)
+    b = pg.monte_carlo(pg.System(stiffness=pg.FourierSeries(k), **common), **kw)
+    assert float(jnp.max(b.std_delta)) > 1e-3
+    for x, y in [(a.mean_u, b.mean_u), (a.std_u, b.std_u), (a.std_delta, b.std_delta)]:
+        np.testing.assert_allclose(x, y, rtol=0, atol=1e-9 * float(jnp.max(jnp.abs(y))))
