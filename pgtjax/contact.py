@@ -151,20 +151,25 @@ class Backlash(ContactLaw):
 
     def linearize(self, mu, sigma, k, b, criterion: str = "force") -> Linearization:
         check_criterion(criterion)
-        upper, lower = mu - b, -b - mu  # distance into the two contact flanks
-        z_up, z_lo = _standardize(upper, sigma), _standardize(lower, sigma)
-        contact_probability = _cdf(z_up) + _cdf(z_lo)  # Eq. 3.39 / k
-        f_0 = k * (_positive_part_mean(upper, sigma, z_up) - _positive_part_mean(lower, sigma, z_lo))
+        # distances into the upper and lower contact flanks, stacked so that each special function is
+        # evaluated once for both flanks (fewer, larger operations)
+        upper, lower, sigma = jnp.broadcast_arrays(mu - b, -b - mu, sigma)
+        offset, sigma = jnp.stack([upper, lower]), sigma[None]
+        z = _standardize(offset, sigma)
+        cdf = _cdf(z)
+        contact_probability = cdf[0] + cdf[1]  # Eq. 3.39 / k
+        mean_part = offset * cdf + sigma * _pdf(z)  # E[(flank deflection)+], see _positive_part_mean
+        f_0 = k * (mean_part[0] - mean_part[1])
         k_force = k * contact_probability
         if criterion == "force":
             return Linearization(k_force, f_0)
         if criterion == "energy":
             # (E[P] - P(mu)) / sigma^2, cancellation-free.
-            excess = 0.5 * k * (_excess_second_moment(z_up) + _excess_second_moment(z_lo))
+            excess = _excess_second_moment(z)
         else:  # energy_origin: E[P] / sigma^2 with P about the origin (Eq. 4.43 as printed; grows like
             # (mu - b)^2 / sigma^2 in permanent contact, so it is only meaningful for |mu| < b).
-            excess = 0.5 * k * (_second_moment_ratio(z_up) + _second_moment_ratio(z_lo))
-        return Linearization(2.0 / 3.0 * (k_force + excess), f_0)
+            excess = _second_moment_ratio(z)
+        return Linearization(2.0 / 3.0 * (k_force + 0.5 * k * (excess[0] + excess[1])), f_0)
 
     def solve_single(self, delta_lin, coupling, k, b):
         # Closed form: delta + s k (delta - b) = delta_lin on the upper flank iff delta_lin > b (s k >= 0).

@@ -12,15 +12,15 @@ the mean and the covariance separately (equivalent, better conditioned):
     m_{i+1} = Phi m_i + c_i,     P_{i+1} = Phi P_i Phi^T + Gamma Gamma^T.
 
 The step's fixed point ``(mu, sigma) = T(mu, sigma)`` of the contact deflections is solved by Newton's method
-(Jacobian by forward-mode autodiff; falls back to a plain fixed-point step when a Newton step is not finite).
-Only the contact-space moments are iterated, by nc x nc algebra (push-through identity, see
-``_contact_moments``); the full covariance update is done once per step. Three forms of that update, all
-exact rewritings of the same step: small systems (n <= 16) form Phi densely; when K and C are constant the
-contact-free one-step map is formed once per run and the linearized contacts enter as rank-nc corrections
-(``_moment_step_constant``: dense products only, the fast path for the gear-train models); otherwise one LU
-of the contact-free ``K_eff`` per step with a Woodbury correction for the contacts. Gradients through the
-converged fixed point use the implicit function theorem (a ``custom_jvp`` whose tangent is
-``-J^-1 dR/dtheta``; reverse mode transposes it); the iterations themselves are not differentiated and cost
+(closed-form Jacobian, see ``_evaluate``; falls back to a plain fixed-point step when a Newton step is not
+finite). Only the contact-space moments are iterated, by nc x nc algebra (push-through identity); the last
+iteration's linearization and ``(I + S K_e)^-1`` are reused by the full covariance update, done once per step.
+Three forms of that update, all exact rewritings of the same step: small systems (n <= 16) form Phi densely;
+when K and C are constant the contact-free one-step map is formed once per run and the linearized contacts
+enter as rank-nc corrections (``_moment_step_constant``: dense products only, the fast path for the gear-train
+models); otherwise one LU of the contact-free ``K_eff`` per step with a Woodbury correction for the contacts.
+Gradients through the converged fixed point use the implicit function theorem (a ``custom_jvp`` whose tangent
+is ``-J^-1 dR/dtheta``; reverse mode transposes it); the iterations themselves are not differentiated and cost
 nothing extra in a forward run.
 """
 
@@ -35,7 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._numerics import safe_sqrt
-from .contact import check_criterion
+from .contact import Linearization, check_criterion
 from .newmark import (
     ConstantPropagator,
     Snapshot,
@@ -65,22 +65,61 @@ class _StepData(NamedTuple):
     clearance: jax.Array
 
 
-def _contact_moments(law, nc: int, criterion: str, z, data: _StepData):
-    """The fixed-point map T: step-end contact moments implied by linearizing at ``z = (mu, sigma)``.
+class _EndTerms(NamedTuple):
+    """The step-end linearization at a contact state ``z``: the law's ``(k_e, f_0)`` and ``R^-1``,
+    ``R = I + S K_e``. Evaluated by every fixed-point iteration and reused by the covariance update."""
+
+    lin: Linearization
+    r_inv: jax.Array  # (nc, nc)
+
+
+def _end_terms(law, nc: int, criterion: str, z, data: _StepData) -> _EndTerms:
+    lin = law.linearize(z[:nc], z[nc:], data.contact_stiffness, data.clearance, criterion)
+    r_inv = jnp.linalg.inv(jnp.eye(nc, dtype=z.dtype) + data.coupling * lin.k_e[None, :])
+    return _EndTerms(lin, r_inv)
+
+
+def _evaluate(law, nc: int, criterion: str, z, data: _StepData, with_jacobian: bool = False):
+    """The residual ``R(z) = T(z) - z`` of the fixed-point map T (the step-end contact moments implied by
+    linearizing at ``z = (mu, sigma)``), the :class:`_EndTerms` at ``z`` and, optionally, ``dR/dz``.
 
     ``G^T (A + G K_e G^T)^-1 = (I + S K_e)^-1 G^T A^-1`` (push-through identity), so the map needs only
-    contact-space (nc x nc) algebra.
+    contact-space (nc x nc) algebra: with ``R = I + S K_e``, ``mean = R^-1 (m - S (f_0 - K_e mu))`` and
+    ``cov = R^-1 Y R^-T``. The Jacobian is closed-form because a contact law linearizes each contact on its
+    own (k_e_j, f_0_j depend on mu_j, sigma_j only): with ``D = R^-1 S`` and ``dR^-1 = -R^-1 S dK_e R^-1``,
+
+        d mean_i / d mu_j    = -D_ij (k_e,mu_j (mean_j - mu_j) + f_0,mu_j - k_e_j)
+        d mean_i / d sigma_j = -D_ij (k_e,sigma_j (mean_j - mu_j) + f_0,sigma_j)
+        d sigma_i / d x_j    = -D_ij cov_ji k_e,x_j / sigma_i          (x = mu or sigma)
+
+    where ``k_e,x`` and ``f_0,x`` are the law's own derivatives (one forward-mode pass each).
     """
     mu, sigma = z[:nc], z[nc:]
-    lin = law.linearize(mu, sigma, data.contact_stiffness, data.clearance, criterion)
-    reduced = jnp.eye(nc, dtype=z.dtype) + data.coupling * lin.k_e[None, :]
-    mean = jnp.linalg.solve(reduced, data.mean - data.coupling @ (lin.f_0 - lin.k_e * mu))
-    cov = jnp.linalg.solve(reduced, jnp.linalg.solve(reduced, data.covariance).T)
-    return jnp.concatenate([mean, safe_sqrt(jnp.diagonal(cov))])
+    coupling = data.coupling
+    terms = _end_terms(law, nc, criterion, z, data)
+    lin, r_inv = terms
+    mean = r_inv @ (data.mean - coupling @ (lin.f_0 - lin.k_e * mu))
+    cov = r_inv @ data.covariance @ r_inv.T
+    std = safe_sqrt(jnp.diagonal(cov))
+    residual = jnp.concatenate([mean, std]) - z
+    if not with_jacobian:
+        return residual, terms, None
 
+    def linearize(m, s):
+        return law.linearize(m, s, data.contact_stiffness, data.clearance, criterion)
 
-def _residual(law, nc, criterion, z, data):
-    return _contact_moments(law, nc, criterion, z, data) - z
+    ones, zeros = jnp.ones_like(mu), jnp.zeros_like(mu)
+    _, d_mu = jax.jvp(linearize, (mu, sigma), (ones, zeros))
+    _, d_sigma = jax.jvp(linearize, (mu, sigma), (zeros, ones))
+    d = r_inv @ coupling
+    gap = mean - mu
+    # D_ij cov_ji / sigma_i, zero where sigma_i = 0 (where the derivative of safe_sqrt is zero)
+    d_cov = d * cov.T / jnp.where(std > 0.0, std, jnp.inf)[:, None]
+    jacobian = -jnp.block([
+        [d * (d_mu.k_e * gap + d_mu.f_0 - lin.k_e)[None, :], d * (d_sigma.k_e * gap + d_sigma.f_0)[None, :]],
+        [d_cov * d_mu.k_e[None, :], d_cov * d_sigma.k_e[None, :]],
+    ])
+    return residual, terms, jacobian - jnp.eye(2 * nc, dtype=z.dtype)
 
 
 class _FixedPointInfo(NamedTuple):
@@ -90,52 +129,67 @@ class _FixedPointInfo(NamedTuple):
 
 
 @functools.partial(jax.custom_jvp, nondiff_argnums=(0, 1, 2))
-def _implicit_solution(law, nc, criterion, z_star, data):
-    """Identity on the converged fixed point ``z*``; its derivative is the implicit-function-theorem one,
-    ``dz = -J^-1 (dR/ddata) ddata`` with ``J = dR/dz`` at ``z*`` (computed only when differentiating)."""
-    return z_star
+def _implicit_solution(law, nc, criterion, z_star, terms, data):
+    """Identity on the converged fixed point ``z*`` and its :class:`_EndTerms` (both computed by the
+    iterations, which are not differentiated). The derivative is the implicit-function-theorem one,
+    ``dz = -J^-1 (dR/ddata) ddata`` with ``J = dR/dz`` at ``z*``, and the end terms' derivative follows from
+    ``dz`` and ``ddata`` (computed only when differentiating)."""
+    return z_star, terms
 
 
 @_implicit_solution.defjvp
 def _implicit_solution_jvp(law, nc, criterion, primals, tangents):
-    z_star, data = primals
-    _, d_data = tangents
-    jac = jax.jacfwd(lambda z: _residual(law, nc, criterion, z, data))(z_star)
-    _, d_res = jax.jvp(lambda d: _residual(law, nc, criterion, z_star, d), (data,), (d_data,))
-    return z_star, -jnp.linalg.solve(jac, d_res)
+    z_star, terms, data = primals
+    *_, d_data = tangents
+    _, _, jac = _evaluate(law, nc, criterion, z_star, data, with_jacobian=True)
+    _, d_res = jax.jvp(lambda d: _evaluate(law, nc, criterion, z_star, d)[0], (data,), (d_data,))
+    d_z = -jnp.linalg.solve(jac, d_res)
+    _, d_terms = jax.jvp(lambda z, d: _end_terms(law, nc, criterion, z, d), (z_star, data), (d_z, d_data))
+    return (z_star, terms), (d_z, d_terms)
 
 
 def _solve_fixed_point(system, z0, data, criterion, rtol, max_iter):
-    """Newton iterations on R(z) = T(z) - z (one linearization per iteration, residual reused)."""
+    """Newton iterations on R(z) = T(z) - z. Returns the converged ``z``, its :class:`_EndTerms` and the
+    convergence information."""
     nc = system.n_contacts
     law = system.contacts.law
     data_const = jax.lax.stop_gradient(data)
 
-    def residual(z):
-        return _residual(law, nc, criterion, z, data_const)
+    def evaluate(z, with_jacobian=False):
+        return _evaluate(law, nc, criterion, z, data_const, with_jacobian)
 
     def scaled_norm(r, z):
         scale = jnp.abs(z[:nc]) + z[nc:] + data_const.clearance + 1e-300
         return jnp.max(jnp.abs(r) / jnp.concatenate([scale, scale]))
 
+    def newton_step(z, r, jac):
+        z_newton = z + jnp.linalg.solve(jac, -r)
+        z_new = jnp.where(jnp.all(jnp.isfinite(z_newton)), z_newton, z + r)  # fixed-point step as fallback
+        return z_new.at[nc:].set(jnp.maximum(z_new[nc:], 0.0))
+
     def body(state):
         # the Jacobian is formed at the start of an iteration, so none is wasted on the converged point
-        z, r, it, _ = state
-        z_newton = z + jnp.linalg.solve(jax.jacfwd(residual)(z), -r)
-        z_new = jnp.where(jnp.all(jnp.isfinite(z_newton)), z_newton, z + r)  # fixed-point step as fallback
-        z_new = z_new.at[nc:].set(jnp.maximum(z_new[nc:], 0.0))
-        r_new = residual(z_new)
-        return z_new, r_new, it + 1, scaled_norm(r_new, z_new)
+        z, r, _, it, _ = state
+        _, _, jac = evaluate(z, with_jacobian=True)
+        z_new = newton_step(z, r, jac)
+        r_new, terms_new, _ = evaluate(z_new)
+        return z_new, r_new, terms_new, it + 1, scaled_norm(r_new, z_new)
 
     def cond(state):
         *_, it, err = state
         return (it < max_iter) & (err > rtol)
 
+    # The first iteration is taken outside the loop with the Jacobian formed together with the first
+    # residual (one map evaluation fewer); started from the previous step, it is usually the only one.
     z0 = jax.lax.stop_gradient(z0)
-    r0 = residual(z0)
-    z_star, _, iters, err = jax.lax.while_loop(cond, body, (z0, r0, jnp.array(0), scaled_norm(r0, z0)))
-    z = _implicit_solution(law, nc, criterion, z_star, data)
-    return z, _FixedPointInfo(iters, err, err <= rtol)
+    r0, _, jac0 = evaluate(z0, with_jacobian=True)
+    first = scaled_norm(r0, z0) > rtol
+    z1 = jnp.where(first, newton_step(z0, r0, jac0), z0)
+    r1, terms1, _ = evaluate(z1)
+    state = (z1, r1, terms1, first.astype(jnp.int32), scaled_norm(r1, z1))
+    z_star, _, terms, iters, err = jax.lax.while_loop(cond, body, state)
+    z, terms = _implicit_solution(law, nc, criterion, z_star, terms, data)
+    return z, terms, _FixedPointInfo(iters, err, err <= rtol)
 
 
 class _Carry(NamedTuple):
@@ -143,19 +197,26 @@ class _Carry(NamedTuple):
     cov: jax.Array  # (2n, 2n)
     snap: Snapshot
     z: jax.Array  # contact (mu, sigma) at the current time, (2 nc,)
+    lin: Linearization  # the contacts' (k_e, f_0) at z, (nc,) each
 
 
-def _linearized_terms(system, snap: Snapshot, z, criterion):
+def _linearize_contacts(system, snap: Snapshot, z, criterion) -> Linearization:
+    nc = system.n_contacts
+    if nc == 0:
+        return Linearization(jnp.zeros((0,)), jnp.zeros((0,)))
+    return system.contacts.law.linearize(z[:nc], z[nc:], snap.contact_stiffness, system.contacts.clearance,
+                                         criterion)
+
+
+def _linearized_terms(system, snap: Snapshot, z, lin: Linearization):
     """Stiffness and load of the linearized system at one instant (Eq. 3.43): K + G k_e G^T, F - G f_tilde."""
     nc = system.n_contacts
     if nc == 0:
-        return snap.stiffness, snap.load, None
-    mu, sigma = z[:nc], z[nc:]
-    lin = system.contacts.law.linearize(mu, sigma, snap.contact_stiffness, system.contacts.clearance, criterion)
+        return snap.stiffness, snap.load
     g = snap.direction
     k_lin = snap.stiffness + (g * lin.k_e[None, :]) @ g.T
-    f_lin = snap.load - g @ (lin.f_0 - lin.k_e * mu)
-    return k_lin, f_lin, lin
+    f_lin = snap.load - g @ (lin.f_0 - lin.k_e * z[:nc])
+    return k_lin, f_lin
 
 
 def _contact_state(system, snap: Snapshot, mean, cov):
@@ -193,10 +254,9 @@ def _record(system, carry: _Carry, criterion, info: _FixedPointInfo, t, observab
     if nc:
         mu, sigma = carry.z[:nc], carry.z[nc:]
         k, b = carry.snap.contact_stiffness, system.contacts.clearance
-        lin = system.contacts.law.linearize(mu, sigma, k, b, criterion)
         f_mean, f_std = system.contacts.law.force_moments(mu, sigma, k, b)
     else:
-        lin = f_mean = f_std = None
+        f_mean = f_std = None
         empty = jnp.zeros((0,))
     return _Saved(
         obs_mean,
@@ -204,8 +264,8 @@ def _record(system, carry: _Carry, criterion, info: _FixedPointInfo, t, observab
         carry.mean,
         jnp.diagonal(carry.cov),
         carry.z,
-        lin.k_e if nc else empty,
-        lin.f_0 if nc else empty,
+        carry.lin.k_e if nc else empty,
+        carry.lin.f_0 if nc else empty,
         f_mean if nc else empty,
         f_std if nc else empty,
         info.iterations,
@@ -222,7 +282,7 @@ def _moment_step(system: System, carry: _Carry, t1, h, criterion, noise_scheme, 
     n, nc = system.n_dof, system.n_contacts
     s0, mean, cov = carry.snap, carry.mean, carry.cov
     s1 = snapshot(system, t1)
-    k0_lin, f0_lin, _ = _linearized_terms(system, s0, carry.z, criterion)
+    k0_lin, f0_lin = _linearized_terms(system, s0, carry.z, carry.lin)
     mats = step_matrices(system, s0._replace(stiffness=k0_lin), s1, h, noise_scheme)
     e_mat, d_mat = mats.from_displacement, mats.from_velocity
     p_top, p_bot = cov[:n, :], cov[n:, :]
@@ -241,23 +301,23 @@ def _moment_step(system: System, carry: _Carry, t1, h, criterion, noise_scheme, 
         coupling = w0 @ g1
         data = _StepData(coupling, w0 @ mean_rhs, w0 @ (y_mat + noise_cov) @ w0.T, s1.contact_stiffness,
                          system.contacts.clearance)
-        z1, info = _solve_fixed_point(system, carry.z, data, criterion, rtol, max_iter)
-        k1_lin, f1_lin, lin1 = _linearized_terms(system, s1, z1, criterion)
+        z1, terms, info = _solve_fixed_point(system, carry.z, data, criterion, rtol, max_iter)
+        lin1 = terms.lin
+        _, f1_lin = _linearized_terms(system, s1, z1, lin1)
         mean_rhs = mean_rhs - s1.load + f1_lin
         ke = lin1.k_e
-        reduced = jnp.eye(nc, dtype=ke.dtype) + ke[:, None] * coupling  # I + K_e S
 
         if n <= _DENSE_PHI_MAX_DOF:  # small systems: factorize the linearized K_eff directly
             lu_eff = jax.scipy.linalg.lu_factor(mats.effective_stiffness + (g1 * ke[None, :]) @ g1.T)
             solve = lambda rhs: jax.scipy.linalg.lu_solve(lu_eff, rhs)  # noqa: E731
         else:
 
-            def solve(rhs):  # Woodbury: (A + G K_e G^T)^-1 = A^-1 - A^-1 G (I + K_e S)^-1 K_e G^T A^-1
+            def solve(rhs):  # Woodbury: (A + G K_e G^T)^-1 = A^-1 - A^-1 G K_e (I + S K_e)^-1 G^T A^-1
                 r2 = rhs if rhs.ndim == 2 else rhs[:, None]
-                out = solve_a(r2) - v0 @ jnp.linalg.solve(reduced, ke[:, None] * (w0 @ r2))
+                out = solve_a(r2) - v0 @ (ke[:, None] * (terms.r_inv @ (w0 @ r2)))
                 return out if rhs.ndim == 2 else out[:, 0]
     else:
-        z1 = carry.z
+        z1, lin1 = carry.z, carry.lin
         info = _FixedPointInfo(jnp.array(0), jnp.array(0.0), jnp.array(True))
     u_mean = solve(mean_rhs)
     g_u = solve(mats.noise)  # Gamma_u, (n, draws)
@@ -276,13 +336,15 @@ def _moment_step(system: System, carry: _Carry, t1, h, criterion, noise_scheme, 
         u_cov = solve(solve(y_mat.T).T)  # X_u P X_u^T
         new_cov = _assemble_covariance(cov, a_mat, u_cov, g_u, g_v, h)
     new_mean = jnp.concatenate([u_mean, (2.0 / h) * (u_mean - mean[:n]) - mean[n:]])
-    return _Carry(new_mean, new_cov, s1, z1), info
+    return _Carry(new_mean, new_cov, s1, z1, lin1), info
 
 
 def _assemble_covariance(cov, a_mat, u_cov, g_u, g_v, h):
     """``Phi P Phi^T + Gamma Gamma^T`` from the displacement rows ``X_u`` of Phi, given ``a_mat = X_u P``
     and ``u_cov = X_u P X_u^T``: the velocity rows are ``Phi_v = (2/h) X_u - W``, ``W = [(2/h) I, I]``
-    (the kinematic relation v1 = (2/h)(u1 - u0) - v0), so every block follows without forming Phi."""
+    (the kinematic relation v1 = (2/h)(u1 - u0) - v0), so every block follows without forming Phi.
+    These block formulas assume a symmetric ``P``; the result is symmetrized so that rounding cannot feed
+    an antisymmetric part (which they would propagate unstably) into the next step."""
     n = a_mat.shape[0]
     a_u, a_v = a_mat[:, :n], a_mat[:, n:]  # X_u P[:, :n], X_u P[:, n:]
     xpw = (2.0 / h) * a_u + a_v  # X_u P W^T
@@ -301,56 +363,54 @@ def _moment_step_constant(system: System, carry: _Carry, t1, h, criterion, noise
     The contact-free map ``X = A^-1 [E, D]`` is formed once per run (:func:`constant_propagator`); the
     linearized contacts at the two ends of the step are rank-nc corrections of it:
 
-        X_a = X - A^-1 G0 [K_e0 G0^T, 0]                (start-of-step contacts, moved into E)
+        X_a = X - A^-1 G0 [K_e0 G0^T, 0]                   (start-of-step contacts, moved into E)
         X_u = X_a - A^-1 G1 (I + K_e1 S)^-1 K_e1 G1^T X_a  (end-of-step contacts, Woodbury)
 
-    with ``S = G1^T A^-1 G1``. The covariance update then costs two dense products (``X P`` and
-    ``(X_u P) X^T``) and matrix products of width nc, instead of triangular solves per step.
+    with ``S = G1^T A^-1 G1``. The covariance update then costs two dense products (``X_a P`` and
+    ``(X_u P) X_u^T``) and matrix products of width nc, instead of triangular solves per step.
     """
     n, nc = system.n_dof, system.n_contacts
     s0, mean, cov = carry.snap, carry.mean, carry.cov
     s1 = snapshot(system, t1)
     noise, v_noise = noise_matrices(system, s0, s1, h, noise_scheme)
     x, a_inv = prop.x, prop.a_inv
-    xp = x @ cov  # X P, (n, 2n)
-    m_a = x @ mean + a_inv @ (s0.load + s1.load)  # A^-1 (r without contact terms)
-    g_a = a_inv @ noise
     if nc:
         g0, g1 = s0.direction, s1.direction
-        law, clearance = system.contacts.law, system.contacts.clearance
-        lin0 = law.linearize(carry.z[:nc], carry.z[nc:], s0.contact_stiffness, clearance, criterion)
-        q0 = lin0.k_e[:, None] * g0.T  # K_e0 G0^T, (nc, n)
-        b0 = a_inv @ g0  # A^-1 G0
-        m_a = m_a - b0 @ (q0 @ mean[:n] + lin0.f_0 - lin0.k_e * carry.z[:nc])
-        xap = xp - b0 @ (q0 @ cov[:n, :])  # X_a P
-        w1 = g1.T @ a_inv  # G1^T A^-1
-        v1 = a_inv @ g1  # A^-1 G1
-        coupling = w1 @ g1
-        gx = g1.T @ x - (w1 @ g0) @ jnp.concatenate([q0, jnp.zeros_like(q0)], axis=1)  # G1^T X_a, (nc, 2n)
-        gxp = gx @ cov
-        wn = w1 @ noise
-        data = _StepData(coupling, g1.T @ m_a, gxp @ gx.T + wn @ wn.T, s1.contact_stiffness, clearance)
-        z1, info = _solve_fixed_point(system, carry.z, data, criterion, rtol, max_iter)
-        lin1 = law.linearize(z1[:nc], z1[nc:], s1.contact_stiffness, clearance, criterion)
-        ke1 = lin1.k_e
-        reduced = jnp.eye(nc, dtype=ke1.dtype) + ke1[:, None] * coupling  # I + K_e1 S
-        f1 = lin1.f_0 - ke1 * z1[:nc]
-        u_mean = m_a - v1 @ jnp.linalg.solve(reduced, ke1 * data.mean + f1)
-        corr = jnp.linalg.solve(reduced, ke1[:, None] * jnp.concatenate([gx, gxp, g1.T @ g_a], axis=1))
-        q1, q1p, q1n = corr[:, : 2 * n], corr[:, 2 * n : 4 * n], corr[:, 4 * n :]
-        a_mat = xap - v1 @ q1p  # X_u P
-        # X_u P X_u^T = a_mat X_a^T - (a_mat Q1^T) V1^T,  a_mat X_a^T = a_mat X^T - (a_mat[:, :n] Q0^T) B0^T
-        u_cov = a_mat @ x.T - (a_mat[:, :n] @ q0.T) @ b0.T - (a_mat @ q1.T) @ v1.T
-        g_u = g_a - v1 @ q1n
+        clearance = system.contacts.clearance
+        lin0 = carry.lin
+        inv_g = a_inv @ jnp.concatenate([g0, g1, noise, (s0.load + s1.load)[:, None]], axis=1)
+        b0, v1, g_a, m_load = inv_g[:, :nc], inv_g[:, nc : 2 * nc], inv_g[:, 2 * nc : -1], inv_g[:, -1]
+        x_a = x - jnp.pad(b0 @ (lin0.k_e[:, None] * g0.T), ((0, 0), (0, n)))  # X_a
+        xap = x_a @ cov  # X_a P, (n, 2n)
+        m_a = x_a @ mean + m_load - b0 @ (lin0.f_0 - lin0.k_e * carry.z[:nc])  # mean of A^-1 (rhs w/o K_e1)
+        proj = g1.T @ jnp.concatenate([x_a, xap, g_a, m_a[:, None], v1], axis=1)  # G1^T [...]
+        gx, gxp, gn = proj[:, : 2 * n], proj[:, 2 * n : 4 * n], proj[:, 4 * n : -1 - nc]
+        coupling = proj[:, -nc:]
+        data = _StepData(coupling, proj[:, -1 - nc], gxp @ gx.T + gn @ gn.T, s1.contact_stiffness, clearance)
+        z1, terms, info = _solve_fixed_point(system, carry.z, data, criterion, rtol, max_iter)
+        lin1 = terms.lin
+        ke1, f1 = lin1.k_e, lin1.f_0 - lin1.k_e * z1[:nc]
+        # (I + K_e1 S)^-1 K_e1 = K_e1 (I + S K_e1)^-1, and the mean column (I + K_e1 S)^-1 (K_e1 m + f1)
+        # = K_e1 (I + S K_e1)^-1 (m - S f1) + f1: both from the fixed point's R^-1 = (I + S K_e1)^-1
+        rhs = jnp.concatenate([proj[:, : -1 - nc], (data.mean - coupling @ f1)[:, None]], axis=1)
+        q = ke1[:, None] * (terms.r_inv @ rhs)
+        corr = v1 @ q.at[:, -1].add(f1)
+        x_u = x_a - corr[:, : 2 * n]
+        a_mat = xap - corr[:, 2 * n : 4 * n]  # X_u P
+        g_u = g_a - corr[:, 4 * n : -1]
+        u_mean = m_a - corr[:, -1]
     else:
-        z1 = carry.z
+        z1, lin1 = carry.z, carry.lin
         info = _FixedPointInfo(jnp.array(0), jnp.array(0.0), jnp.array(True))
-        u_mean, a_mat, g_u = m_a, xp, g_a
-        u_cov = a_mat @ x.T
+        inv_g = a_inv @ jnp.concatenate([noise, (s0.load + s1.load)[:, None]], axis=1)
+        x_u, g_u = x, inv_g[:, :-1]
+        a_mat = x @ cov
+        u_mean = x @ mean + inv_g[:, -1]
+    u_cov = a_mat @ x_u.T  # X_u P X_u^T
     g_v = (2.0 / h) * g_u + v_noise
     new_cov = _assemble_covariance(cov, a_mat, u_cov, g_u, g_v, h)
     new_mean = jnp.concatenate([u_mean, (2.0 / h) * (u_mean - mean[:n]) - mean[n:]])
-    return _Carry(new_mean, new_cov, s1, z1), info
+    return _Carry(new_mean, new_cov, s1, z1, lin1), info
 
 
 def solve_moments(
@@ -394,6 +454,10 @@ def solve_moments(
     validate_time_grid(dt, n_steps, save_every)
     check_criterion(criterion)
     check_noise_scheme(noise_scheme)
+    if not (isinstance(rtol, (int, float)) and 0.0 < rtol < 1.0):
+        raise ValueError(f"`rtol` must be a number in (0, 1), got {rtol!r}")
+    if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
+        raise ValueError(f"`max_iter` must be an integer >= 1, got {max_iter!r}")
     n = system.n_dof
     u0, v0 = initial_state(system, initial_displacement, initial_velocity)
     p0 = jnp.zeros((2 * n, 2 * n)) if initial_covariance is None else jnp.asarray(initial_covariance, jnp.float64)
@@ -415,7 +479,8 @@ def _solve_moments_jit(
 ):
     mean0 = jnp.concatenate([u0, v0])
     s0 = snapshot(system, t0)
-    carry = _Carry(mean0, p0, s0, _contact_state(system, s0, mean0, p0))
+    z0 = _contact_state(system, s0, mean0, p0)
+    carry = _Carry(mean0, p0, s0, z0, _linearize_contacts(system, s0, z0, criterion))
     first = _record(system, carry, criterion, _FixedPointInfo(jnp.array(0), jnp.array(0.0), jnp.array(True)), t0,
                     observables)
     n_blocks = n_steps // save_every

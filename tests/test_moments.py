@@ -188,3 +188,49 @@ def test_constant_stiffness_path_equals_general_path_with_backlash(criterion, sc
     for x, y in [(a.mean_u, b.mean_u), (a.std_u, b.std_u), (a.std_v, b.std_v), (a.mean_delta, b.mean_delta),
                  (a.std_delta, b.std_delta), (a.k_e, b.k_e)]:
         np.testing.assert_allclose(x, y, rtol=0, atol=1e-10 * float(jnp.max(jnp.abs(y))))
+
+
+def _contact_space_data(nc, seed):
+    """A contact-space step: S = G^T A^-1 G symmetric positive definite, Y a covariance."""
+    from pgtjax.linearization import _StepData
+
+    rng = np.random.default_rng(seed)
+    a = rng.standard_normal((nc, nc))
+    y = rng.standard_normal((nc, nc))
+    coupling = jnp.asarray(a @ a.T * 1e-10 + np.eye(nc) * 1e-9)
+    return _StepData(coupling, jnp.asarray(rng.standard_normal(nc) * 2e-5), jnp.asarray(y @ y.T * 1e-10),
+                     jnp.full(nc, 1e9), jnp.full(nc, 1e-5))
+
+
+@pytest.mark.parametrize("criterion", ["force", "energy", "energy_origin"])
+def test_closed_form_fixed_point_jacobian_equals_forward_mode_autodiff(criterion):
+    """The Newton Jacobian of the contact-space fixed point is assembled in closed form from the law's own
+    derivatives (pgtjax.linearization._evaluate); it must equal jax.jacfwd of the residual, including a
+    contact with sigma = 0 (where the sigma rows vanish) and contacts in and out of the dead zone."""
+    import jax
+
+    from pgtjax.linearization import _evaluate
+
+    nc = 4
+    data = _contact_space_data(nc, 3)
+    law = pg.Backlash()
+    z = jnp.array([2e-5, -1e-5, 0.3e-5, 1.5e-5, 1e-5, 0.5e-5, 2e-5, 0.0])
+    residual, terms, jac = _evaluate(law, nc, criterion, z, data, with_jacobian=True)
+    jac_ad = jax.jacfwd(lambda zz: _evaluate(law, nc, criterion, zz, data)[0])(z)
+    assert jac.dtype == jnp.float64
+    np.testing.assert_allclose(jac, jac_ad, rtol=1e-10, atol=1e-12 * float(jnp.max(jnp.abs(jac_ad))))
+    # the end terms are the law's linearization at z and (I + S K_e)^-1
+    lin = law.linearize(z[:nc], z[nc:], data.contact_stiffness, data.clearance, criterion)
+    np.testing.assert_allclose(terms.lin.k_e, lin.k_e, rtol=1e-15)
+    np.testing.assert_allclose(terms.r_inv @ (jnp.eye(nc) + data.coupling * lin.k_e[None, :]), jnp.eye(nc),
+                               atol=1e-12)
+
+
+def test_bad_fixed_point_settings_raise():
+    m, k = grounded_spring_chain(4, 100.0, 1)
+    system = pg.System(mass=m, stiffness=k, damping=0.01 * k, noise_input=np.eye(4)[:, :1],
+                       spectral_density=1.0)
+    with pytest.raises(ValueError, match="rtol"):
+        pg.solve_moments(system, dt=0.01, n_steps=4, rtol=0.0)
+    with pytest.raises(ValueError, match="max_iter"):
+        pg.solve_moments(system, dt=0.01, n_steps=4, max_iter=0)
