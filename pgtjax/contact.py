@@ -107,9 +107,10 @@ class ContactLaw(eqx.Module):
 
     Subclasses implement ``force``, ``stiffness`` (df/ddelta) and ``potential`` (P with P' = f, P(0) = 0),
     and ``linearize`` for a Gaussian deflection. Every method acts contact by contact (the coefficients of
-    contact j depend only on contact j's arguments): the SL solver's closed-form Newton Jacobian relies on it. A law whose ``stiffness`` is always either 0 or ``k`` sets
-    ``on_off_stiffness = True``: Monte Carlo then inverts the contact-space Newton Jacobians of all 2^nc
-    contact patterns once per step instead of once per sample and iteration.
+    contact j depend only on contact j's arguments): the SL solver's closed-form Newton Jacobian relies on it.
+    A law whose ``stiffness`` is always either 0 or ``k`` sets ``on_off_stiffness = True``: Monte Carlo then
+    inverts the contact-space Newton Jacobians of all 2^nc contact patterns once per step instead of once per
+    sample and iteration.
     """
 
     on_off_stiffness: ClassVar[bool] = False

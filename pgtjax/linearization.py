@@ -27,6 +27,7 @@ nothing extra in a forward run.
 from __future__ import annotations
 
 import functools
+import numbers
 from typing import NamedTuple
 
 import equinox as eqx
@@ -73,8 +74,13 @@ class _EndTerms(NamedTuple):
     r_inv: jax.Array  # (nc, nc)
 
 
+def _linearizer(law, criterion: str, data: _StepData):
+    """``(mu, sigma) -> Linearization`` of the step-end contacts."""
+    return lambda mu, sigma: law.linearize(mu, sigma, data.contact_stiffness, data.clearance, criterion)
+
+
 def _end_terms(law, nc: int, criterion: str, z, data: _StepData) -> _EndTerms:
-    lin = law.linearize(z[:nc], z[nc:], data.contact_stiffness, data.clearance, criterion)
+    lin = _linearizer(law, criterion, data)(z[:nc], z[nc:])
     r_inv = jnp.linalg.inv(jnp.eye(nc, dtype=z.dtype) + data.coupling * lin.k_e[None, :])
     return _EndTerms(lin, r_inv)
 
@@ -105,9 +111,7 @@ def _evaluate(law, nc: int, criterion: str, z, data: _StepData, with_jacobian: b
     if not with_jacobian:
         return residual, terms, None
 
-    def linearize(m, s):
-        return law.linearize(m, s, data.contact_stiffness, data.clearance, criterion)
-
+    linearize = _linearizer(law, criterion, data)
     ones, zeros = jnp.ones_like(mu), jnp.zeros_like(mu)
     _, d_mu = jax.jvp(linearize, (mu, sigma), (ones, zeros))
     _, d_sigma = jax.jvp(linearize, (mu, sigma), (zeros, ones))
@@ -242,7 +246,7 @@ class _Saved(NamedTuple):
     converged: jax.Array
 
 
-def _record(system, carry: _Carry, criterion, info: _FixedPointInfo, t, observables) -> _Saved:
+def _record(system, carry: _Carry, info: _FixedPointInfo, t, observables) -> _Saved:
     nc = system.n_contacts
     n = system.n_dof
     if observables is not None:
@@ -454,9 +458,9 @@ def solve_moments(
     validate_time_grid(dt, n_steps, save_every)
     check_criterion(criterion)
     check_noise_scheme(noise_scheme)
-    if not (isinstance(rtol, (int, float)) and 0.0 < rtol < 1.0):
+    if isinstance(rtol, bool) or not isinstance(rtol, numbers.Real) or not 0.0 < rtol < 1.0:
         raise ValueError(f"`rtol` must be a number in (0, 1), got {rtol!r}")
-    if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
+    if isinstance(max_iter, bool) or not isinstance(max_iter, numbers.Integral) or max_iter < 1:
         raise ValueError(f"`max_iter` must be an integer >= 1, got {max_iter!r}")
     n = system.n_dof
     u0, v0 = initial_state(system, initial_displacement, initial_velocity)
@@ -481,8 +485,8 @@ def _solve_moments_jit(
     s0 = snapshot(system, t0)
     z0 = _contact_state(system, s0, mean0, p0)
     carry = _Carry(mean0, p0, s0, z0, _linearize_contacts(system, s0, z0, criterion))
-    first = _record(system, carry, criterion, _FixedPointInfo(jnp.array(0), jnp.array(0.0), jnp.array(True)), t0,
-                    observables)
+    no_iterations = _FixedPointInfo(jnp.array(0), jnp.array(0.0), jnp.array(True))
+    first = _record(system, carry, no_iterations, t0, observables)
     n_blocks = n_steps // save_every
     # K and C constant: the contact-free step operators are formed once per run (and differentiated once)
     prop = constant_propagator(system, dt)
@@ -503,7 +507,7 @@ def _solve_moments_jit(
             jnp.max(infos.iterations), jnp.max(infos.residual), jnp.all(infos.converged)
         )
         t_end = t0 + dt * (block_index + 1) * save_every
-        return carry, _record(system, carry, criterion, worst, t_end, observables)
+        return carry, _record(system, carry, worst, t_end, observables)
 
     if checkpoint:
         block = jax.checkpoint(block)
