@@ -41,9 +41,11 @@ functions are exactly saturated in float64, so every coefficient is finite and d
 from __future__ import annotations
 
 import abc
+import functools
 from typing import ClassVar, NamedTuple
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 from jax.scipy.special import erfc
 
@@ -81,14 +83,6 @@ def _second_moment_ratio(z):
     return (z * z + 1.0) * _cdf(z) + z * _pdf(z)
 
 
-def _excess_second_moment(z):
-    """(E[(X+)^2] - (E[X]+)^2) / s^2 without cancellation.
-
-    For z > 0, E[(X+)^2] = E[X^2] - E[(X-)^2] = s^2 (1 + z^2) - s^2 G(-z), so the excess is 1 - G(-z).
-    """
-    return jnp.where(z > 0.0, 1.0 - _second_moment_ratio(-z), _second_moment_ratio(z))
-
-
 def _standardize(offset, sigma):
     """z = offset / sigma, saturated to +-40 (exact in float64), sigma = 0 allowed."""
     positive = sigma > 0.0
@@ -100,6 +94,53 @@ def _standardize(offset, sigma):
 def _positive_part_mean(offset, sigma, z):
     """E[X+] for X ~ N(offset, sigma^2) = offset Phi(z) + sigma phi(z)."""
     return offset * _cdf(z) + sigma * _pdf(z)
+
+
+def _flank_values(criterion, offset, sigma):
+    """``z``, ``Phi(z)``, ``phi(z)``, the flank statistics (see :func:`_flank_statistics`) and the derivative
+    of the excess term with respect to ``z`` (None for the force criterion)."""
+    z = _standardize(offset, sigma)
+    cdf, pdf = _cdf(z), _pdf(z)
+    stats = [cdf, offset * cdf + sigma * pdf]
+    d_excess = None
+    if criterion == "energy":
+        # (E[(X+)^2] - (E[X]+)^2) / sigma^2 without cancellation: for z > 0, E[(X+)^2] = E[X^2] - E[(X-)^2],
+        # so the excess is 1 - G(-z) (G = _second_moment_ratio); Phi(-z) is shared with the derivative
+        cdf_neg = _cdf(-z)
+        upper = 1.0 - ((z * z + 1.0) * cdf_neg - z * pdf)  # 1 - G(-z)
+        stats.append(jnp.where(z > 0.0, upper, (z * z + 1.0) * cdf + z * pdf))
+        d_excess = 2.0 * jnp.where(z > 0.0, pdf - z * cdf_neg, z * cdf + pdf)
+    elif criterion == "energy_origin":  # _second_moment_ratio
+        stats.append((z * z + 1.0) * cdf + z * pdf)
+        d_excess = 2.0 * (z * cdf + pdf)
+    return z, cdf, pdf, tuple(stats), d_excess
+
+
+@functools.partial(jax.custom_jvp, nondiff_argnums=(0,))
+def _flank_statistics(criterion, offset, sigma):
+    """For a flank deflection ``X ~ N(offset, sigma^2)``: ``(P(X > 0), E[X+])`` and, for the energy
+    criteria, the excess second moment ``(E[(X+)^2] - (E[X]+)^2) / sigma^2`` (``"energy"``) or
+    ``E[(X+)^2] / sigma^2`` = :func:`_second_moment_ratio` (``"energy_origin"``).
+
+    Its derivatives are written in terms of the same ``Phi(z)`` and ``phi(z)`` (no new special-function
+    evaluations): with ``dz = (d offset - z d sigma) / sigma`` (zero where ``z`` is saturated or sigma = 0),
+    ``dPhi = phi dz``, ``dE[X+] = Phi d offset + phi d sigma`` (exact also where z is saturated) and
+    ``d excess = excess'(z) dz``, ``excess' = 2 (z Phi(z) + phi(z))`` (minus ``2 z`` for the energy criterion
+    when z > 0, written cancellation-free as ``2 (phi(z) - z Phi(-z))``)."""
+    return _flank_values(criterion, offset, sigma)[3]
+
+
+@_flank_statistics.defjvp
+def _flank_statistics_jvp(criterion, primals, tangents):
+    offset, sigma = primals
+    d_offset, d_sigma = tangents
+    z, cdf, pdf, stats, d_excess = _flank_values(criterion, offset, sigma)
+    active = (sigma > 0.0) & (jnp.abs(z) < _Z_SATURATION)
+    dz = jnp.where(active, (d_offset - z * d_sigma) / jnp.where(active, sigma, 1.0), 0.0)
+    d_stats = [pdf * dz, cdf * d_offset + pdf * d_sigma]
+    if d_excess is not None:
+        d_stats.append(d_excess * dz)
+    return stats, tuple(d_stats)
 
 
 class ContactLaw(eqx.Module):
@@ -157,20 +198,17 @@ class Backlash(ContactLaw):
         # evaluated once for both flanks (fewer, larger operations)
         upper, lower, sigma = jnp.broadcast_arrays(mu - b, -b - mu, sigma)
         offset, sigma = jnp.stack([upper, lower]), sigma[None]
-        z = _standardize(offset, sigma)
-        cdf = _cdf(z)
+        # per flank: P(contact), E[(flank deflection)+] and, for the energy criteria, the excess second
+        # moment ((E[P] - P(mu)) / sigma^2 cancellation-free, or E[P] / sigma^2 about the origin for
+        # "energy_origin": Eq. 4.43 as printed, which grows like (mu - b)^2 / sigma^2 in permanent contact)
+        stats = _flank_statistics(criterion, offset, sigma)
+        cdf, mean_part = stats[0], stats[1]
         contact_probability = cdf[0] + cdf[1]  # Eq. 3.39 / k
-        mean_part = offset * cdf + sigma * _pdf(z)  # E[(flank deflection)+], see _positive_part_mean
         f_0 = k * (mean_part[0] - mean_part[1])
         k_force = k * contact_probability
         if criterion == "force":
             return Linearization(k_force, f_0)
-        if criterion == "energy":
-            # (E[P] - P(mu)) / sigma^2, cancellation-free.
-            excess = _excess_second_moment(z)
-        else:  # energy_origin: E[P] / sigma^2 with P about the origin (Eq. 4.43 as printed; grows like
-            # (mu - b)^2 / sigma^2 in permanent contact, so it is only meaningful for |mu| < b).
-            excess = _second_moment_ratio(z)
+        excess = stats[2]
         return Linearization(2.0 / 3.0 * (k_force + 0.5 * k * (excess[0] + excess[1])), f_0)
 
     def solve_single(self, delta_lin, coupling, k, b):

@@ -79,15 +79,38 @@ def _linearizer(law, criterion: str, data: _StepData):
     return lambda mu, sigma: law.linearize(mu, sigma, data.contact_stiffness, data.clearance, criterion)
 
 
+@jax.custom_jvp
+def _inverse(a):
+    """``a^-1`` (LU with partial pivoting) whose derivative is the product ``-a^-1 da a^-1``: fewer and
+    smaller operations than differentiating through the LU solves."""
+    return jnp.linalg.inv(a)
+
+
+@_inverse.defjvp
+def _inverse_jvp(primals, tangents):
+    (a,), (da,) = primals, tangents
+    a_inv = _inverse(a)
+    return a_inv, -a_inv @ da @ a_inv
+
+
 def _end_terms(law, nc: int, criterion: str, z, data: _StepData) -> _EndTerms:
     lin = _linearizer(law, criterion, data)(z[:nc], z[nc:])
-    r_inv = jnp.linalg.inv(jnp.eye(nc, dtype=z.dtype) + data.coupling * lin.k_e[None, :])
+    r_inv = _inverse(jnp.eye(nc, dtype=z.dtype) + data.coupling * lin.k_e[None, :])
     return _EndTerms(lin, r_inv)
+
+
+class _Jacobian(NamedTuple):
+    """``dR/dz`` and the law's per-contact derivatives it was built from (reused by the tangent rule)."""
+
+    matrix: jax.Array  # (2 nc, 2 nc)
+    d_mu: Linearization  # (d k_e / d mu_j, d f_0 / d mu_j) of each contact j
+    d_sigma: Linearization
 
 
 def _evaluate(law, nc: int, criterion: str, z, data: _StepData, with_jacobian: bool = False):
     """The residual ``R(z) = T(z) - z`` of the fixed-point map T (the step-end contact moments implied by
-    linearizing at ``z = (mu, sigma)``), the :class:`_EndTerms` at ``z`` and, optionally, ``dR/dz``.
+    linearizing at ``z = (mu, sigma)``), the :class:`_EndTerms` at ``z`` and, optionally, ``dR/dz``
+    (a :class:`_Jacobian`).
 
     ``G^T (A + G K_e G^T)^-1 = (I + S K_e)^-1 G^T A^-1`` (push-through identity), so the map needs only
     contact-space (nc x nc) algebra: with ``R = I + S K_e``, ``mean = R^-1 (m - S (f_0 - K_e mu))`` and
@@ -123,7 +146,7 @@ def _evaluate(law, nc: int, criterion: str, z, data: _StepData, with_jacobian: b
         [d * (d_mu.k_e * gap + d_mu.f_0 - lin.k_e)[None, :], d * (d_sigma.k_e * gap + d_sigma.f_0)[None, :]],
         [d_cov * d_mu.k_e[None, :], d_cov * d_sigma.k_e[None, :]],
     ])
-    return residual, terms, jacobian - jnp.eye(2 * nc, dtype=z.dtype)
+    return residual, terms, _Jacobian(jacobian - jnp.eye(2 * nc, dtype=z.dtype), d_mu, d_sigma)
 
 
 class _FixedPointInfo(NamedTuple):
@@ -146,9 +169,14 @@ def _implicit_solution_jvp(law, nc, criterion, primals, tangents):
     z_star, terms, data = primals
     *_, d_data = tangents
     _, _, jac = _evaluate(law, nc, criterion, z_star, data, with_jacobian=True)
-    _, d_res = jax.jvp(lambda d: _evaluate(law, nc, criterion, z_star, d)[0], (data,), (d_data,))
-    d_z = -jnp.linalg.solve(jac, d_res)
-    _, d_terms = jax.jvp(lambda z, d: _end_terms(law, nc, criterion, z, d), (z_star, data), (d_z, d_data))
+    _, (d_res, d_terms) = jax.jvp(lambda d: _evaluate(law, nc, criterion, z_star, d)[:2], (data,), (d_data,))
+    d_z = -jnp.linalg.solve(jac.matrix, d_res)
+    # the end terms' part through z, from the law's derivatives: dk_e, df_0 and dR^-1 = -R^-1 S dK_e R^-1
+    d_mu, d_sigma = d_z[:nc], d_z[nc:]
+    d_lin = jax.tree.map(lambda a, b: a * d_mu + b * d_sigma, jac.d_mu, jac.d_sigma)
+    r_inv = terms.r_inv
+    d_r_inv = -r_inv @ (data.coupling * d_lin.k_e[None, :]) @ r_inv
+    d_terms = jax.tree.map(jnp.add, d_terms, _EndTerms(d_lin, d_r_inv))
     return (z_star, terms), (d_z, d_terms)
 
 
@@ -167,7 +195,7 @@ def _solve_fixed_point(system, z0, data, criterion, rtol, max_iter):
         return jnp.max(jnp.abs(r) / jnp.concatenate([scale, scale]))
 
     def newton_step(z, r, jac):
-        z_newton = z + jnp.linalg.solve(jac, -r)
+        z_newton = z + jnp.linalg.solve(jac.matrix, -r)
         z_new = jnp.where(jnp.all(jnp.isfinite(z_newton)), z_newton, z + r)  # fixed-point step as fallback
         return z_new.at[nc:].set(jnp.maximum(z_new[nc:], 0.0))
 

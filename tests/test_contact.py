@@ -111,17 +111,21 @@ def test_zero_sigma_is_the_deterministic_limit():
         assert float(lin.k_e) == float(LAW.stiffness(jnp.array(mu), K, B))
 
 
-@pytest.mark.parametrize("crit", ["force", "energy"])
+@pytest.mark.parametrize("crit", ["force", "energy", "energy_origin"])
 def test_gradients_finite_on_grid_and_match_finite_differences(crit):
+    """The coefficients' derivatives (hand-written in terms of Phi and phi, see contact._flank_statistics)
+    against central differences in (mu, sigma, k, b), in reverse and forward mode."""
     def coeffs(p):
         lin = LAW.linearize(p[0] * B, p[1] * B, p[2] * K, p[3] * B, crit)
         return jnp.stack([lin.k_e / K, lin.f_0 / (K * B)])
 
     jac = jax.jit(jax.jacrev(coeffs))
+    jac_fwd = jax.jit(jax.jacfwd(coeffs))
     for mu_b, sigma_b in GRID:
         p = jnp.array([mu_b, sigma_b, 1.0, 1.0])
         J = np.asarray(jac(p))
         assert np.all(np.isfinite(J)), (mu_b, sigma_b)
+        np.testing.assert_allclose(np.asarray(jac_fwd(p)), J, rtol=1e-13, atol=1e-15)
         if 0.05 <= sigma_b <= 20:
             h = 1e-6
             fd = np.stack([(np.asarray(coeffs(p + h * e)) - np.asarray(coeffs(p - h * e))) / (2 * h)
