@@ -33,9 +33,10 @@ printed (``k delta^2/2 - k b delta``) differs by the constant ``-k b^2/2`` and i
 which breaks the integration by parts (Stein's lemma) the derivation rests on.
 
 Numerics: with ``z = (mu - b) / sigma`` the expectations are ``sigma`` times functions of ``z`` built from
-``Phi`` (via ``erfc``, relatively accurate in the tails) and ``phi``; ``z`` is clipped to +-40 where these
-functions are exactly saturated in float64, so every coefficient is finite and differentiable for every
+``Phi`` (via ``erfc``, relatively accurate in the tails) and ``phi``; ``z`` is clipped to +-40 where ``Phi``
+and ``phi`` are exactly saturated in float64, so every coefficient is finite and differentiable for every
 ``sigma >= 0`` (``sigma = 0`` gives the deterministic limit ``k_e = f'(mu)``, ``f_0 = f(mu)``) and for ``b = 0``.
+(The ``"energy_origin"`` term, which grows like ``z^2``, is frozen beyond the clip rather than saturated.)
 """
 
 from __future__ import annotations
@@ -104,8 +105,9 @@ def _flank_values(criterion, offset, sigma):
     stats = [cdf, offset * cdf + sigma * pdf]
     d_excess = None
     if criterion == "energy":
-        # (E[(X+)^2] - (E[X]+)^2) / sigma^2 without cancellation: for z > 0, E[(X+)^2] = E[X^2] - E[(X-)^2],
-        # so the excess is 1 - G(-z) (G = _second_moment_ratio); Phi(-z) is shared with the derivative
+        # (E[(X+)^2] - max(E[X], 0)^2) / sigma^2 without cancellation: for z > 0,
+        # E[(X+)^2] = E[X^2] - E[(X-)^2], so the excess is 1 - G(-z) (G = _second_moment_ratio);
+        # Phi(-z) is shared with the derivative
         cdf_neg = _cdf(-z)
         upper = 1.0 - ((z * z + 1.0) * cdf_neg - z * pdf)  # 1 - G(-z)
         stats.append(jnp.where(z > 0.0, upper, (z * z + 1.0) * cdf + z * pdf))
@@ -119,14 +121,14 @@ def _flank_values(criterion, offset, sigma):
 @functools.partial(jax.custom_jvp, nondiff_argnums=(0,))
 def _flank_statistics(criterion, offset, sigma):
     """For a flank deflection ``X ~ N(offset, sigma^2)``: ``(P(X > 0), E[X+])`` and, for the energy
-    criteria, the excess second moment ``(E[(X+)^2] - (E[X]+)^2) / sigma^2`` (``"energy"``) or
+    criteria, the excess second moment ``(E[(X+)^2] - max(E[X], 0)^2) / sigma^2`` (``"energy"``) or
     ``E[(X+)^2] / sigma^2`` = :func:`_second_moment_ratio` (``"energy_origin"``).
 
     Its derivatives are written in terms of the same ``Phi(z)`` and ``phi(z)`` (no new special-function
-    evaluations): with ``dz = (d offset - z d sigma) / sigma`` (zero where ``z`` is saturated or sigma = 0),
-    ``dPhi = phi dz``, ``dE[X+] = Phi d offset + phi d sigma`` (exact also where z is saturated) and
-    ``d excess = excess'(z) dz``, ``excess' = 2 (z Phi(z) + phi(z))`` (minus ``2 z`` for the energy criterion
-    when z > 0, written cancellation-free as ``2 (phi(z) - z Phi(-z))``)."""
+    evaluations): with ``dz = (d offset - z d sigma) / sigma`` (zero where ``z`` is saturated, ``|z| = 40``
+    included, or sigma = 0), ``dPhi = phi dz``, ``dE[X+] = Phi d offset + phi d sigma`` (exact also where z
+    is saturated) and ``d excess = excess'(z) dz``, ``excess' = 2 (z Phi(z) + phi(z))`` (minus ``2 z`` for the
+    energy criterion when z > 0, written cancellation-free as ``2 (phi(z) - z Phi(-z))``)."""
     return _flank_values(criterion, offset, sigma)[3]
 
 

@@ -133,6 +133,34 @@ def test_gradients_finite_on_grid_and_match_finite_differences(crit):
             np.testing.assert_allclose(J, fd, rtol=1e-5, atol=1e-7 * (1 + np.abs(fd).max()))
 
 
+
+@pytest.mark.parametrize("crit", ["force", "energy", "energy_origin"])
+def test_hand_written_flank_derivatives_equal_plain_autodiff(crit):
+    """The custom JVP of contact._flank_statistics against plain autodiff of the same primal
+    (contact._flank_values), on edge cases the finite-difference grid does not reach: sigma = 0, b = 0,
+    z = 0 (mu = +-b), deep saturation and tiny sigma."""
+    from pgtjax.contact import _flank_statistics, _flank_values
+
+    mu = jnp.array([0.0, 1.0, -1.0, 0.3, 2.5, -45.0, 1e-3, 0.0, 1.0, 0.7])
+    sigma = jnp.array([0.0, 0.0, 1.0, 0.5, 1e-3, 1.0, 1e-9, 2.0, 3.0, 30.0])
+    b = jnp.array([1.0, 0.0, 1.0, 0.0, 1.0, 1.0, 1.0, 1.0, 0.0, 1.0])
+
+    def stacked(stats_fn):
+        def f(mu, sigma, b):
+            offset = jnp.stack([mu - b, -b - mu])
+            return jnp.concatenate(stats_fn(crit, offset, sigma[None]))
+        return f
+
+    plain = stacked(lambda c, o, s: _flank_values(c, o, s)[3])
+    custom = stacked(_flank_statistics)
+    np.testing.assert_array_equal(np.asarray(custom(mu, sigma, b)), np.asarray(plain(mu, sigma, b)))
+    for argnum in range(3):
+        j_custom = np.asarray(jax.jacfwd(custom, argnums=argnum)(mu, sigma, b))
+        j_plain = np.asarray(jax.jacfwd(plain, argnums=argnum)(mu, sigma, b))
+        assert j_custom.dtype == np.float64 and np.all(np.isfinite(j_custom))
+        scale = np.maximum(np.abs(j_plain).max(axis=1, keepdims=True), 1e-300)
+        np.testing.assert_allclose(j_custom / scale, j_plain / scale, rtol=0, atol=1e-12)
+
 def test_force_moments_match_quadrature():
     for mu_b, sigma_b in [(-1.0, 0.5), (0.0, 1.0), (2.0, 0.7), (10.0, 0.2), (0.0, 30.0)]:
         mu, sigma = mu_b * B, sigma_b * B

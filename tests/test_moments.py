@@ -227,6 +227,29 @@ def test_closed_form_fixed_point_jacobian_equals_forward_mode_autodiff(criterion
                                atol=1e-12)
 
 
+
+@pytest.mark.parametrize("criterion", ["force", "energy"])
+def test_implicit_tangent_of_end_terms_equals_autodiff(criterion):
+    """The tangent rule of the converged fixed point builds the end terms' derivative through z in closed form
+    (law derivatives and dR^-1 = -R^-1 S dK_e R^-1); it must equal forward-mode autodiff of the end terms
+    along the same (dz, d data)."""
+    import jax
+
+    from pgtjax.linearization import _end_terms, _implicit_solution
+
+    nc = 4
+    data = _contact_space_data(nc, 5)
+    d_data = jax.tree.map(lambda x: x * jnp.linspace(0.5, 1.5, x.size).reshape(x.shape) * 1e-2,
+                          _contact_space_data(nc, 6))
+    law = pg.Backlash()
+    z = jnp.array([2e-5, -1e-5, 0.3e-5, 1.5e-5, 1e-5, 0.5e-5, 2e-5, 0.0])
+    terms = _end_terms(law, nc, criterion, z, data)
+    _, (d_z, d_terms) = jax.jvp(lambda d: _implicit_solution(law, nc, criterion, z, terms, d), (data,), (d_data,))
+    _, d_terms_ad = jax.jvp(lambda zz, dd: _end_terms(law, nc, criterion, zz, dd), (z, data), (d_z, d_data))
+    for got, want in zip(jax.tree.leaves(d_terms), jax.tree.leaves(d_terms_ad)):
+        assert got.dtype == jnp.float64
+        np.testing.assert_allclose(got, want, rtol=1e-10, atol=1e-12 * float(jnp.max(jnp.abs(want))))
+
 def test_bad_fixed_point_settings_raise():
     m, k = grounded_spring_chain(4, 100.0, 1)
     system = pg.System(mass=m, stiffness=k, damping=0.01 * k, noise_input=np.eye(4)[:, :1],
