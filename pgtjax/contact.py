@@ -79,9 +79,12 @@ def _pdf(z):
     return _INV_SQRT_2PI * jnp.exp(-0.5 * z * z)
 
 
-def _second_moment_ratio(z):
-    """E[(X+)^2] / s^2 for X ~ N(z s, s^2): (z^2 + 1) Phi(z) + z phi(z)."""
-    return (z * z + 1.0) * _cdf(z) + z * _pdf(z)
+def _second_moment_ratio(z, cdf=None, pdf=None):
+    """E[(X+)^2] / s^2 for X ~ N(z s, s^2): (z^2 + 1) Phi(z) + z phi(z) (Phi(z), phi(z) computed here unless
+    given)."""
+    cdf = _cdf(z) if cdf is None else cdf
+    pdf = _pdf(z) if pdf is None else pdf
+    return (z * z + 1.0) * cdf + z * pdf
 
 
 def _standardize(offset, sigma):
@@ -108,12 +111,12 @@ def _flank_values(criterion, offset, sigma):
         # (E[(X+)^2] - max(E[X], 0)^2) / sigma^2 without cancellation: for z > 0,
         # E[(X+)^2] = E[X^2] - E[(X-)^2], so the excess is 1 - G(-z) (G = _second_moment_ratio);
         # Phi(-z) is shared with the derivative
-        cdf_neg = _cdf(-z)
-        upper = 1.0 - ((z * z + 1.0) * cdf_neg - z * pdf)  # 1 - G(-z)
-        stats.append(jnp.where(z > 0.0, upper, (z * z + 1.0) * cdf + z * pdf))
+        cdf_neg = _cdf(-z)  # phi is even: phi(-z) = pdf
+        upper = 1.0 - _second_moment_ratio(-z, cdf_neg, pdf)
+        stats.append(jnp.where(z > 0.0, upper, _second_moment_ratio(z, cdf, pdf)))
         d_excess = 2.0 * jnp.where(z > 0.0, pdf - z * cdf_neg, z * cdf + pdf)
-    elif criterion == "energy_origin":  # _second_moment_ratio
-        stats.append((z * z + 1.0) * cdf + z * pdf)
+    elif criterion == "energy_origin":
+        stats.append(_second_moment_ratio(z, cdf, pdf))
         d_excess = 2.0 * (z * cdf + pdf)
     return z, cdf, pdf, tuple(stats), d_excess
 
