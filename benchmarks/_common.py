@@ -42,6 +42,25 @@ def timed(fn, *args, repeats: int = 3, **kwargs):
     return first, statistics.median(times), times, out
 
 
+def timed_interleaved(fns: dict, *args, repeats: int = 3) -> dict:
+    """Like :func:`timed` for several functions of the same arguments, their timed calls alternating
+    (f, g, f, g, ...) so that a ratio between them sees the same machine load. Returns, per name,
+    ``dict(first_call_s, median_s, runs_s)``."""
+    out = {}
+    for name, fn in fns.items():
+        t = time.perf_counter()
+        jax.block_until_ready(fn(*args))
+        out[name] = dict(first_call_s=time.perf_counter() - t, runs_s=[])
+    for _ in range(repeats):
+        for name, fn in fns.items():
+            t = time.perf_counter()
+            jax.block_until_ready(fn(*args))
+            out[name]["runs_s"].append(time.perf_counter() - t)
+    for row in out.values():
+        row["median_s"] = statistics.median(row["runs_s"])
+    return out
+
+
 def write(name: str, payload: dict) -> Path:
     RESULTS.mkdir(exist_ok=True)
     path = RESULTS / f"{name}.json"

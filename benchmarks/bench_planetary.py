@@ -3,7 +3,13 @@ SL + recursion over one carrier period at the thesis's step (10,022 steps of 0.0
 (reverse mode w.r.t. rim thickness and bolt stiffness), and Monte Carlo throughput, extrapolated to the
 thesis's 100,000 samples, with the peak resident memory of the process.
 
+The gradient is timed at each save interval of ``--grad-save-every`` (forward and gradient calls alternating,
+so that their ratio sees the same machine load). Reverse mode keeps the state once per saved block and
+rematerializes the block's steps: with one step per block the recomputed step and its transpose form one
+loop body, while longer blocks also stack each step's residuals for the block's reverse loop.
+
 Usage: python benchmarks/bench_planetary.py [--mc-samples 2000] [--mc-periods 0.25] [--repeats 3]
+       [--grad-save-every 1,2]
 Writes benchmarks/results/planetary.json. Correctness first: MC vs SL on a short run.
 """
 
@@ -16,7 +22,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from _common import timed, write
+from _common import timed, timed_interleaved, write
 
 import pgtjax as pg
 from pgtjax.models import planetary as pm
@@ -31,6 +37,8 @@ def main():
     ap.add_argument("--mc-samples", type=int, default=2000)
     ap.add_argument("--mc-periods", type=float, default=0.25, help="fraction of a carrier period for MC timing")
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--grad-save-every", type=lambda s: [int(v) for v in s.split(",")], default=[1, 2],
+                    help="save intervals at which to time the gradient, comma-separated")
     args = ap.parse_args()
     p = pm.default_params()
     lay = pm.layout(p)
@@ -55,22 +63,30 @@ def main():
     sl_first, sl_med, sl_all, _ = timed(sl_fn, repeats=args.repeats)
     print(f"SL one carrier period ({n_period} steps): first {sl_first:.1f} s, median {sl_med:.2f} s {sl_all}")
 
-    # --- gradient of a scalar of the full-period SL run
+    # --- gradient of a scalar of the full-period SL run, for each save interval asked for: reverse mode
+    # rematerializes each saved block, so the interval changes the gradient's cost (module docstring)
     node = lay.ring_start + 6
-
-    def loss(x):
-        ring = eqx.tree_at(lambda r: (r.thickness, r.radius, r.k_support_radial), p.ring,
-                           (x[0], p.ring_pitch_radius + x[0] / 2, x[1]))
-        q = eqx.tree_at(lambda z: z.ring, p, ring)
-        r = pg.solve_moments(pm.planetary(q), dt=dt, n_steps=n_period, save_every=2,
-                             initial_displacement=u_eq, initial_covariance=p0)
-        return jnp.max(r.std_u[:, node])
-
     x = jnp.array([float(p.ring.thickness), 1.362e10])
-    fwd_first, fwd_med, fwd_all, _ = timed(jax.jit(loss), x, repeats=args.repeats)
-    grad_first, grad_med, grad_all, g = timed(jax.jit(jax.grad(loss)), x, repeats=args.repeats)
-    print(f"scalar of the SL run: forward {fwd_med:.2f} s, gradient {grad_med:.2f} s "
-          f"({grad_med / fwd_med:.2f}x); gradient {np.asarray(g)}")
+    gradients = []
+    for save_every in args.grad_save_every:
+        def loss(x, save_every=save_every):
+            ring = eqx.tree_at(lambda r: (r.thickness, r.radius, r.k_support_radial), p.ring,
+                               (x[0], p.ring_pitch_radius + x[0] / 2, x[1]))
+            q = eqx.tree_at(lambda z: z.ring, p, ring)
+            r = pg.solve_moments(pm.planetary(q), dt=dt, n_steps=n_period, save_every=save_every,
+                                 initial_displacement=u_eq, initial_covariance=p0)
+            return jnp.max(r.std_u[:, node])
+
+        t = timed_interleaved({"forward": jax.jit(loss), "gradient": jax.jit(jax.grad(loss))}, x,
+                              repeats=args.repeats)
+        fwd, grd = t["forward"], t["gradient"]
+        ratio = grd["median_s"] / fwd["median_s"]
+        print(f"scalar of the SL run (save_every={save_every}): forward {fwd['median_s']:.2f} s, gradient "
+              f"{grd['median_s']:.2f} s ({ratio:.2f}x)")
+        gradients.append(dict(save_every=save_every, forward_median_s=fwd["median_s"],
+                              gradient_median_s=grd["median_s"], ratio=ratio, forward_runs_s=fwd["runs_s"],
+                              gradient_runs_s=grd["runs_s"], forward_first_call_s=fwd["first_call_s"],
+                              gradient_first_call_s=grd["first_call_s"]))
 
     # --- Monte Carlo throughput
     n_mc = int(round(args.mc_periods * n_period))
@@ -86,13 +102,13 @@ def main():
           f"sample-step; 100,000 samples x one period extrapolated {extrapolated / 60:.1f} min; peak RSS {rss_gb:.2f} GB")
     path = write("planetary", dict(
         command="python benchmarks/bench_planetary.py " + " ".join(
-            f"--{k.replace('_', '-')} {v}" for k, v in vars(args).items()),
+            f"--{k.replace('_', '-')} {','.join(map(str, v)) if isinstance(v, list) else v}"
+            for k, v in vars(args).items()),
         n_dof=lay.n_dof, n_contacts=system.n_contacts, dt_s=dt, steps_per_carrier_period=n_period,
         correctness=dict(max_std_deviation_in_se=z),
         sl_one_period=dict(first_call_s=sl_first, median_s=sl_med, runs_s=sl_all,
                            ratio_vs_thesis_48s=THESIS_SL_S / sl_med),
-        gradient=dict(forward_median_s=fwd_med, gradient_median_s=grad_med, ratio=grad_med / fwd_med,
-                      forward_first_call_s=fwd_first, gradient_first_call_s=grad_first),
+        gradient=gradients,
         monte_carlo=dict(samples=args.mc_samples, steps=n_mc, first_call_s=mc_first, median_s=mc_med, runs_s=mc_all,
                          per_sample_step_ns=per_sample_step * 1e9,
                          extrapolated_100k_one_period_s=extrapolated,

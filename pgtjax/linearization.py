@@ -20,8 +20,9 @@ when K and C are constant the contact-free one-step map is formed once per run a
 enter as rank-nc corrections (``_moment_step_constant``: dense products only, the fast path for the gear-train
 models); otherwise one LU of the contact-free ``K_eff`` per step with a Woodbury correction for the contacts.
 Gradients through the converged fixed point use the implicit function theorem (a ``custom_jvp`` whose tangent
-is ``-J^-1 dR/dtheta``; reverse mode transposes it); the iterations themselves are not differentiated and cost
-nothing extra in a forward run.
+is ``-J^-1 dR/dtheta``, written in closed form; reverse mode transposes it); the iterations themselves are not
+differentiated and cost nothing extra in a forward run, and under ``checkpoint`` their solution is kept rather
+than recomputed.
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.ad_checkpoint import checkpoint_name
 
 from ._numerics import safe_sqrt
 from .contact import Linearization, check_criterion
@@ -49,6 +51,7 @@ from .newmark import (
 from .results import MomentResult
 from .system import Observables, System, initial_state, validate_system, validate_time_grid
 
+_FIXED_POINT_NAME = "sl_fixed_point"
 _DENSE_PHI_MAX_DOF = 16  # below this size the covariance update forms Phi explicitly (overhead-bound regime)
 
 
@@ -107,6 +110,50 @@ class _Jacobian(NamedTuple):
     d_sigma: Linearization
 
 
+class _Moments(NamedTuple):
+    """The step-end contact moments implied by a linearization: T(z) of the fixed-point map."""
+
+    mean: jax.Array  # (nc,)
+    cov: jax.Array  # (nc, nc)
+    std: jax.Array  # (nc,)
+
+
+def _implied_moments(nc: int, z, terms: _EndTerms, data: _StepData) -> _Moments:
+    """``mean = R^-1 (m - S (f_0 - K_e mu))`` and ``cov = R^-1 Y R^-T`` (see :func:`_evaluate`)."""
+    lin, r_inv = terms
+    mean = r_inv @ (data.mean - data.coupling @ (lin.f_0 - lin.k_e * z[:nc]))
+    cov = r_inv @ data.covariance @ r_inv.T
+    return _Moments(mean, cov, safe_sqrt(jnp.diagonal(cov)))
+
+
+def _law_derivatives(law, criterion: str, z, data: _StepData, wrt):
+    """The law's derivatives (one :class:`Linearization` each) along unit tangents of the arguments named
+    in ``wrt`` (of ``mu, sigma, k, b``): contacts are linearized independently, so these are per contact."""
+    nc = data.contact_stiffness.shape[0]
+    args = (z[:nc], z[nc:], data.contact_stiffness, data.clearance)
+    names = ("mu", "sigma", "k", "b")
+    linearize = lambda *a: law.linearize(*a, criterion)  # noqa: E731
+    out = []
+    for name in wrt:
+        tangent = tuple(jnp.ones_like(a) if n == name else jnp.zeros_like(a) for n, a in zip(names, args))
+        out.append(jax.jvp(linearize, args, tangent)[1])
+    return out
+
+
+def _jacobian(nc: int, z, terms: _EndTerms, moments: _Moments, data: _StepData, d_mu, d_sigma) -> _Jacobian:
+    """``dR/dz`` in closed form (formulas in :func:`_evaluate`)."""
+    d = terms.r_inv @ data.coupling
+    gap = moments.mean - z[:nc]
+    # D_ij cov_ji / sigma_i, zero where sigma_i = 0 (where the derivative of safe_sqrt is zero)
+    d_cov = d * moments.cov.T / jnp.where(moments.std > 0.0, moments.std, jnp.inf)[:, None]
+    k_e = terms.lin.k_e
+    jacobian = -jnp.block([
+        [d * (d_mu.k_e * gap + d_mu.f_0 - k_e)[None, :], d * (d_sigma.k_e * gap + d_sigma.f_0)[None, :]],
+        [d_cov * d_mu.k_e[None, :], d_cov * d_sigma.k_e[None, :]],
+    ])
+    return _Jacobian(jacobian - jnp.eye(2 * nc, dtype=z.dtype), d_mu, d_sigma)
+
+
 def _evaluate(law, nc: int, criterion: str, z, data: _StepData, with_jacobian: bool = False):
     """The residual ``R(z) = T(z) - z`` of the fixed-point map T (the step-end contact moments implied by
     linearizing at ``z = (mu, sigma)``), the :class:`_EndTerms` at ``z`` and, optionally, ``dR/dz``
@@ -123,30 +170,13 @@ def _evaluate(law, nc: int, criterion: str, z, data: _StepData, with_jacobian: b
 
     where ``k_e,x`` and ``f_0,x`` are the law's own derivatives (one forward-mode pass each).
     """
-    mu, sigma = z[:nc], z[nc:]
-    coupling = data.coupling
     terms = _end_terms(law, nc, criterion, z, data)
-    lin, r_inv = terms
-    mean = r_inv @ (data.mean - coupling @ (lin.f_0 - lin.k_e * mu))
-    cov = r_inv @ data.covariance @ r_inv.T
-    std = safe_sqrt(jnp.diagonal(cov))
-    residual = jnp.concatenate([mean, std]) - z
+    moments = _implied_moments(nc, z, terms, data)
+    residual = jnp.concatenate([moments.mean, moments.std]) - z
     if not with_jacobian:
         return residual, terms, None
-
-    linearize = _linearizer(law, criterion, data)
-    ones, zeros = jnp.ones_like(mu), jnp.zeros_like(mu)
-    _, d_mu = jax.jvp(linearize, (mu, sigma), (ones, zeros))
-    _, d_sigma = jax.jvp(linearize, (mu, sigma), (zeros, ones))
-    d = r_inv @ coupling
-    gap = mean - mu
-    # D_ij cov_ji / sigma_i, zero where sigma_i = 0 (where the derivative of safe_sqrt is zero)
-    d_cov = d * cov.T / jnp.where(std > 0.0, std, jnp.inf)[:, None]
-    jacobian = -jnp.block([
-        [d * (d_mu.k_e * gap + d_mu.f_0 - lin.k_e)[None, :], d * (d_sigma.k_e * gap + d_sigma.f_0)[None, :]],
-        [d_cov * d_mu.k_e[None, :], d_cov * d_sigma.k_e[None, :]],
-    ])
-    return residual, terms, _Jacobian(jacobian - jnp.eye(2 * nc, dtype=z.dtype), d_mu, d_sigma)
+    d_mu, d_sigma = _law_derivatives(law, criterion, z, data, ("mu", "sigma"))
+    return residual, terms, _jacobian(nc, z, terms, moments, data, d_mu, d_sigma)
 
 
 class _FixedPointInfo(NamedTuple):
@@ -166,18 +196,41 @@ def _implicit_solution(law, nc, criterion, z_star, terms, data):
 
 @_implicit_solution.defjvp
 def _implicit_solution_jvp(law, nc, criterion, primals, tangents):
+    """Closed-form tangents. At fixed ``z``, a data tangent ``(dS, dm, dY, dk, db)`` moves the law's
+    coefficients by ``dk_e = k_e,k dk + k_e,b db`` (likewise ``df_0``) and ``S K_e`` by
+    ``dA = dS K_e + S dK_e``; with ``dR^-1 = -R^-1 dA R^-1`` and ``mean = R^-1 c``:
+
+        d mean = R^-1 (dm - dS f~ - S df~ - dA mean),   f~ = f_0 - K_e mu,  df~ = df_0 - dK_e mu
+        d var_i = 2 sum_j (dR^-1)_ij (R^-1 Y)_ij + sum_j (R^-1 dY)_ij (R^-1)_ij,   d std = d var / (2 std)
+
+    which is ``dR/ddata``; then ``dz = -J^-1 dR/ddata``, and the end terms move with both ``dz`` and the data:
+    ``dK_e = (data part) + k_e,mu dmu + k_e,sigma dsigma`` and ``dR^-1 = -R^-1 (dS K_e + S dK_e) R^-1``.
+    The primal quantities used here are named for the reverse pass's checkpoint policy: they are kept, not
+    recomputed, so the rematerialized step repeats none of this contact-space algebra."""
     z_star, terms, data = primals
     *_, d_data = tangents
-    _, _, jac = _evaluate(law, nc, criterion, z_star, data, with_jacobian=True)
-    _, (d_res, d_terms) = jax.jvp(lambda d: _evaluate(law, nc, criterion, z_star, d)[:2], (data,), (d_data,))
-    d_z = -jnp.linalg.solve(jac.matrix, d_res)
-    # the end terms' part through z, from the law's derivatives: dk_e, df_0 and dR^-1 = -R^-1 S dK_e R^-1
-    d_mu, d_sigma = d_z[:nc], d_z[nc:]
-    d_lin = jax.tree.map(lambda a, b: a * d_mu + b * d_sigma, jac.d_mu, jac.d_sigma)
-    r_inv = terms.r_inv
-    d_r_inv = -r_inv @ (data.coupling * d_lin.k_e[None, :]) @ r_inv
-    d_terms = jax.tree.map(jnp.add, d_terms, _EndTerms(d_lin, d_r_inv))
-    return (z_star, terms), (d_z, d_terms)
+    lin, r_inv = terms
+    mu = z_star[:nc]
+    s_mat = data.coupling
+    moments = _implied_moments(nc, z_star, terms, data)
+    d_mu, d_sigma, d_k, d_b = _law_derivatives(law, criterion, z_star, data, ("mu", "sigma", "k", "b"))
+    jac_inv = jnp.linalg.inv(_jacobian(nc, z_star, terms, moments, data, d_mu, d_sigma).matrix)
+    r_inv_y = r_inv @ data.covariance
+    inv_std = jnp.where(moments.std > 0.0, 0.5 / jnp.where(moments.std > 0.0, moments.std, 1.0), 0.0)
+    kept = (moments.mean, inv_std, d_mu, d_sigma, d_k, d_b, jac_inv, r_inv_y)
+    mean, inv_std, d_mu, d_sigma, d_k, d_b, jac_inv, r_inv_y = checkpoint_name(kept, _FIXED_POINT_NAME)
+
+    d_s, d_k_data, d_b_data = d_data.coupling, d_data.contact_stiffness, d_data.clearance
+    d_lin = jax.tree.map(lambda a, b: a * d_k_data + b * d_b_data, d_k, d_b)  # data part at fixed z
+    d_a = d_s * lin.k_e[None, :] + s_mat * d_lin.k_e[None, :]
+    f_tilde = lin.f_0 - lin.k_e * mu
+    d_mean = r_inv @ (d_data.mean - d_s @ f_tilde - s_mat @ (d_lin.f_0 - d_lin.k_e * mu) - d_a @ mean)
+    d_var = (-2.0 * jnp.sum((r_inv @ d_a @ r_inv) * r_inv_y, axis=1)
+             + jnp.sum((r_inv @ d_data.covariance) * r_inv, axis=1))
+    d_z = -jac_inv @ jnp.concatenate([d_mean, d_var * inv_std])
+    d_lin = jax.tree.map(lambda a, b, c: a + b * d_z[:nc] + c * d_z[nc:], d_lin, d_mu, d_sigma)
+    d_r_inv = -r_inv @ (d_s * lin.k_e[None, :] + s_mat * d_lin.k_e[None, :]) @ r_inv
+    return (z_star, terms), (d_z, _EndTerms(d_lin, d_r_inv))
 
 
 def _solve_fixed_point(system, z0, data, criterion, rtol, max_iter):
@@ -220,6 +273,8 @@ def _solve_fixed_point(system, z0, data, criterion, rtol, max_iter):
     r1, terms1, _ = evaluate(z1)
     state = (z1, r1, terms1, first.astype(jnp.int32), scaled_norm(r1, z1))
     z_star, _, terms, iters, err = jax.lax.while_loop(cond, body, state)
+    # named so that the reverse pass's rematerialization keeps them instead of re-running the iterations
+    z_star, terms = checkpoint_name((z_star, terms), _FIXED_POINT_NAME)
     z, terms = _implicit_solution(law, nc, criterion, z_star, terms, data)
     return z, terms, _FixedPointInfo(iters, err, err <= rtol)
 
@@ -388,6 +443,12 @@ def _assemble_covariance(cov, a_mat, u_cov, g_u, g_v, h):
     return 0.5 * (new_cov + new_cov.T)
 
 
+def _varying_snapshot(system: System, t) -> Snapshot:
+    """The snapshot without the (constant) K and C, for the constant-propagator path: K and C are then
+    not part of the scan's carry, so reverse mode does not store a copy of them per saved block."""
+    return snapshot(system, t)._replace(damping=None, stiffness=None)
+
+
 def _moment_step_constant(system: System, carry: _Carry, t1, h, criterion, noise_scheme, rtol, max_iter,
                           prop: ConstantPropagator):
     """One step of the recursion when K and C are constant (only the contacts, load and noise input vary).
@@ -398,12 +459,13 @@ def _moment_step_constant(system: System, carry: _Carry, t1, h, criterion, noise
         X_a = X - A^-1 G0 [K_e0 G0^T, 0]                   (start-of-step contacts, moved into E)
         X_u = X_a - A^-1 G1 (I + K_e1 S)^-1 K_e1 G1^T X_a  (end-of-step contacts, Woodbury)
 
-    with ``S = G1^T A^-1 G1``. The covariance update then costs two dense products (``X_a P`` and
-    ``(X_u P) X_u^T``) and matrix products of width nc, instead of triangular solves per step.
+    with ``S = G1^T A^-1 G1``. The fixed point needs only the contact rows ``G1^T X_a P`` (nc x 2n); once
+    ``K_e1`` is known the covariance update costs two dense products (``X_u P`` and ``(X_u P) X_u^T``) and
+    matrix products of width nc, instead of triangular solves per step.
     """
     n, nc = system.n_dof, system.n_contacts
     s0, mean, cov = carry.snap, carry.mean, carry.cov
-    s1 = snapshot(system, t1)
+    s1 = _varying_snapshot(system, t1)
     noise, v_noise = noise_matrices(system, s0, s1, h, noise_scheme)
     x, a_inv = prop.x, prop.a_inv
     if nc:
@@ -413,31 +475,31 @@ def _moment_step_constant(system: System, carry: _Carry, t1, h, criterion, noise
         inv_g = a_inv @ jnp.concatenate([g0, g1, noise, (s0.load + s1.load)[:, None]], axis=1)
         b0, v1, g_a, m_load = inv_g[:, :nc], inv_g[:, nc : 2 * nc], inv_g[:, 2 * nc : -1], inv_g[:, -1]
         x_a = x - jnp.pad(b0 @ (lin0.k_e[:, None] * g0.T), ((0, 0), (0, n)))  # X_a
-        xap = x_a @ cov  # X_a P, (n, 2n)
         m_a = x_a @ mean + m_load - b0 @ (lin0.f_0 - lin0.k_e * carry.z[:nc])  # mean of A^-1 (rhs w/o K_e1)
-        proj = g1.T @ jnp.concatenate([x_a, xap, g_a, m_a[:, None], v1], axis=1)  # G1^T [...]
-        gx, gxp, gn = proj[:, : 2 * n], proj[:, 2 * n : 4 * n], proj[:, 4 * n : -1 - nc]
-        coupling = proj[:, -nc:]
-        data = _StepData(coupling, proj[:, -1 - nc], gxp @ gx.T + gn @ gn.T, s1.contact_stiffness, clearance)
+        gx = g1.T @ x_a  # G1^T X_a, (nc, 2n)
+        proj = g1.T @ jnp.concatenate([g_a, m_a[:, None], v1], axis=1)  # G1^T [Gamma_a, m_a, A^-1 G1]
+        gn, coupling = proj[:, : -1 - nc], proj[:, -nc:]
+        # the contacts' covariance needs G1^T X_a P only (nc rows), not X_a P itself
+        cov_c = (gx @ cov) @ gx.T + gn @ gn.T
+        data = _StepData(coupling, proj[:, -1 - nc], cov_c, s1.contact_stiffness, clearance)
         z1, terms, info = _solve_fixed_point(system, carry.z, data, criterion, rtol, max_iter)
         lin1 = terms.lin
         ke1, f1 = lin1.k_e, lin1.f_0 - lin1.k_e * z1[:nc]
         # (I + K_e1 S)^-1 K_e1 = K_e1 (I + S K_e1)^-1, and the mean column (I + K_e1 S)^-1 (K_e1 m + f1)
         # = K_e1 (I + S K_e1)^-1 (m - S f1) + f1: both from the fixed point's R^-1 = (I + S K_e1)^-1
-        rhs = jnp.concatenate([proj[:, : -1 - nc], (data.mean - coupling @ f1)[:, None]], axis=1)
+        rhs = jnp.concatenate([gx, gn, (data.mean - coupling @ f1)[:, None]], axis=1)
         q = ke1[:, None] * (terms.r_inv @ rhs)
         corr = v1 @ q.at[:, -1].add(f1)
         x_u = x_a - corr[:, : 2 * n]
-        a_mat = xap - corr[:, 2 * n : 4 * n]  # X_u P
-        g_u = g_a - corr[:, 4 * n : -1]
+        g_u = g_a - corr[:, 2 * n : -1]
         u_mean = m_a - corr[:, -1]
     else:
         z1, lin1 = carry.z, carry.lin
         info = _FixedPointInfo(jnp.array(0), jnp.array(0.0), jnp.array(True))
         inv_g = a_inv @ jnp.concatenate([noise, (s0.load + s1.load)[:, None]], axis=1)
         x_u, g_u = x, inv_g[:, :-1]
-        a_mat = x @ cov
         u_mean = x @ mean + inv_g[:, -1]
+    a_mat = x_u @ cov  # X_u P
     u_cov = a_mat @ x_u.T  # X_u P X_u^T
     g_v = (2.0 / h) * g_u + v_noise
     new_cov = _assemble_covariance(cov, a_mat, u_cov, g_u, g_v, h)
@@ -479,6 +541,11 @@ def solve_moments(
         throw: raise if a step's fixed point does not converge or a NaN appears (works under ``jit``);
             with ``False`` the flags are returned in the result (``converged``, ``iterations``, ``residual``).
         checkpoint: rematerialize each saved block in reverse mode (memory ~ number of saves, not steps).
+            The fixed points' solutions and their tangent rule's contact-space quantities are kept (a few
+            hundred numbers per step), so the rematerialization repeats neither iterations nor that algebra.
+            With ``save_every = 1`` each rematerialized step and its transpose form one loop body; longer
+            blocks also stack each step's residuals for the block's reverse loop (measured: the gradient
+            costs about 4x the forward run at ``save_every = 1`` and about 5x at 2, planetary model).
         observables: optional :class:`pgtjax.Observables` ``y = C(t) u`` whose mean and standard deviation
             are reported (``mean_obs``, ``std_obs``).
     """
@@ -510,23 +577,24 @@ def _solve_moments_jit(
     observables,
 ):
     mean0 = jnp.concatenate([u0, v0])
-    s0 = snapshot(system, t0)
+    # K and C constant: the contact-free step operators are formed once per run (and differentiated once)
+    prop = constant_propagator(system, dt)
+    constant_path = prop is not None and system.n_dof > _DENSE_PHI_MAX_DOF
+    s0 = _varying_snapshot(system, t0) if constant_path else snapshot(system, t0)
     z0 = _contact_state(system, s0, mean0, p0)
     carry = _Carry(mean0, p0, s0, z0, _linearize_contacts(system, s0, z0, criterion))
     no_iterations = _FixedPointInfo(jnp.array(0), jnp.array(0.0), jnp.array(True))
     first = _record(system, carry, no_iterations, t0, observables)
     n_blocks = n_steps // save_every
-    # K and C constant: the contact-free step operators are formed once per run (and differentiated once)
-    prop = constant_propagator(system, dt)
     lu_const = None
-    if prop is not None and system.n_dof <= _DENSE_PHI_MAX_DOF:
+    if prop is not None and not constant_path:
         k_eff = system.stiffness + (2.0 / dt) * system.damping + (4.0 / dt**2) * system.mass
         lu_const = jax.scipy.linalg.lu_factor(k_eff)
 
     def block(carry, block_index):
         def inner(c, j):
             t1 = t0 + dt * (block_index * save_every + j + 1)
-            if prop is not None and lu_const is None:
+            if constant_path:
                 return _moment_step_constant(system, c, t1, dt, criterion, noise_scheme, rtol, max_iter, prop)
             return _moment_step(system, c, t1, dt, criterion, noise_scheme, rtol, max_iter, lu_const)
 
@@ -538,7 +606,7 @@ def _solve_moments_jit(
         return carry, _record(system, carry, worst, t_end, observables)
 
     if checkpoint:
-        block = jax.checkpoint(block)
+        block = jax.checkpoint(block, policy=jax.checkpoint_policies.save_only_these_names(_FIXED_POINT_NAME))
     _, saved = jax.lax.scan(block, carry, jnp.arange(n_blocks))
     saved = jax.tree.map(lambda a, b: jnp.concatenate([a[None], b], axis=0), first, saved)
     times = t0 + dt * save_every * jnp.arange(n_blocks + 1, dtype=jnp.float64)

@@ -250,6 +250,31 @@ def test_implicit_tangent_of_end_terms_equals_autodiff(criterion):
         assert got.dtype == jnp.float64
         np.testing.assert_allclose(got, want, rtol=1e-10, atol=1e-12 * float(jnp.max(jnp.abs(want))))
 
+@pytest.mark.parametrize("criterion", ["force", "energy", "energy_origin"])
+def test_implicit_tangent_of_fixed_point_equals_autodiff_formula(criterion):
+    """The closed-form tangent of the converged point, ``dz = -J^-1 (dR/ddata) ddata``, against the same
+    formula built from plain autodiff: J by jacfwd of the residual in z, dR/ddata by a jvp of the residual
+    in the data."""
+    import jax
+
+    from pgtjax.linearization import _end_terms, _evaluate, _implicit_solution
+
+    nc = 4
+    data = _contact_space_data(nc, 5)
+    d_data = jax.tree.map(lambda x: x * jnp.linspace(0.5, 1.5, x.size).reshape(x.shape) * 1e-2,
+                          _contact_space_data(nc, 6))
+    law = pg.Backlash()
+    z = jnp.array([2e-5, -1e-5, 0.3e-5, 1.5e-5, 1e-5, 0.5e-5, 2e-5, 0.0])
+    terms = _end_terms(law, nc, criterion, z, data)
+    _, (d_z, _) = jax.jvp(lambda d: _implicit_solution(law, nc, criterion, z, terms, d), (data,), (d_data,))
+    residual = lambda zz, dd: _evaluate(law, nc, criterion, zz, dd)[0]  # noqa: E731
+    jac = jax.jacfwd(residual)(z, data)
+    _, d_res = jax.jvp(lambda dd: residual(z, dd), (data,), (d_data,))
+    want = -np.linalg.solve(np.asarray(jac), np.asarray(d_res))
+    assert d_z.dtype == jnp.float64
+    np.testing.assert_allclose(d_z, want, rtol=1e-9, atol=1e-12 * float(np.max(np.abs(want))))
+
+
 def test_bad_fixed_point_settings_raise():
     m, k = grounded_spring_chain(4, 100.0, 1)
     system = pg.System(mass=m, stiffness=k, damping=0.01 * k, noise_input=np.eye(4)[:, :1],

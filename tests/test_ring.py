@@ -17,6 +17,7 @@ from pgtjax.models.ring import (
     ring_load_vector,
     ring_matrices,
     ring_natural_frequencies,
+    ring_nodal_inverse,
     ring_shape_at,
     support_stiffness_matrix,
     thin_ring_fourier_frequencies,
@@ -286,6 +287,27 @@ def test_load_transfer_jit_vmap_grad():
     np.testing.assert_allclose(g, fd, rtol=1e-6)
     dofs, n = jax.jit(lambda t: ring_shape_at(p, t))(3.3)
     assert dofs.shape == (6,) and n.shape == (3, 6)
+
+
+def test_preformed_nodal_inverse_gives_the_same_shape_functions_and_radius_gradient():
+    """A moving mesh evaluates the shape functions at every step with the element inverse formed once
+    (``ring_nodal_inverse``); values and their derivative in the ring radius must equal those formed on the
+    spot, and the shape functions must still interpolate the nodes (N(0) = [I 0], N(angle) = [0 I])."""
+    def rows(radius, theta, preformed):
+        p = RingParams(radius, 0.015, 0.03, E, RHO, n_elements=12)
+        return ring_interpolation(p, theta, ring_nodal_inverse(p) if preformed else None)
+
+    p = RingParams(0.2, 0.015, 0.03, E, RHO, n_elements=12)
+    c = ring_nodal_inverse(p)
+    assert c.shape == (6, 6) and c.dtype == jnp.float64
+    np.testing.assert_allclose(ring_shape_at(p, 0.0, c)[1], np.eye(3, 6), atol=1e-12)
+    np.testing.assert_allclose(ring_shape_at(p, p.element_angle * (1 - 1e-15), c)[1], np.eye(3, 6, k=3),
+                               atol=1e-9)
+    for theta in (0.1, 1.3, 4.0):
+        np.testing.assert_allclose(rows(0.2, theta, True), rows(0.2, theta, False), rtol=1e-12, atol=1e-14)
+        d_pre = jax.jacfwd(rows)(0.2, theta, True)
+        d_own = jax.jacfwd(rows)(0.2, theta, False)
+        np.testing.assert_allclose(d_pre, d_own, rtol=1e-10, atol=1e-12 * float(jnp.max(jnp.abs(d_own))))
 
 
 # ------------------------------------------------------------------------------------------------

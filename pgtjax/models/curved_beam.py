@@ -204,21 +204,30 @@ def _nodal_inverse(angle, radius, delta):
     return jnp.linalg.solve(scale[:, None] * bt, jnp.diag(scale))
 
 
+def nodal_inverse(angle, radius, area, second_moment):
+    """``C`` (6 x 6) of an element: nodal DOFs to the coefficients of the shape functions' basis
+    (``B^-1`` of Eq. 3.20 in the recombined basis of :func:`_recombined`). It depends on the element
+    only, so a caller evaluating shape functions at many points (a moving mesh, every time step) forms
+    it once and passes it to :func:`element_shape_matrix`. Arguments as :func:`element_shape_matrix`."""
+    return _nodal_inverse(angle, radius, second_moment / (area * radius**2))
+
+
 @jax.jit
-def element_shape_matrix(s, angle, radius, area, second_moment):
+def element_shape_matrix(s, angle, radius, area, second_moment, nodal_inverse=None):
     """Shape-function matrix ``N(s) = H(s) B^-1`` (3 x 6) (Eqs. 3.20, 6.4-6.5 with ERRATA).
 
     Args:
         s: local angle [rad] measured from node 1 of the element (0 <= s <= angle; values outside
             extrapolate the same functions).
         angle: element arc angle [rad]; radius [m]; area [m^2]; second_moment [m^4].
+        nodal_inverse: the element's :func:`nodal_inverse` if already formed (else formed here).
 
     Returns:
         (3, 6) array; rows give (u_r [m], u_tau [m], u_theta [rad]) at ``s`` per unit nodal DOF, columns
         are ``(u_r1, u_tau1, u_theta1, u_r2, u_tau2, u_theta2)``.
     """
     delta = second_moment / (area * radius**2)
-    c = _nodal_inverse(angle, radius, delta)
+    c = _nodal_inverse(angle, radius, delta) if nodal_inverse is None else nodal_inverse
     return _recombined(s - 0.5 * angle, 0.5 * angle, radius, delta)[0] @ c
 
 

@@ -59,7 +59,7 @@ import numpy as np
 from .. import params as _params
 from ..contact import Backlash
 from ..system import Contacts, System
-from .ring import RingParams, ring_dof_names, ring_interpolation, ring_matrices
+from .ring import RingParams, ring_dof_names, ring_interpolation, ring_matrices, ring_nodal_inverse
 
 
 class Body(eqx.Module):
@@ -335,10 +335,12 @@ def ring_planet_lumped_part(p: PlanetaryParams, lay: Layout, n: int):
     return _unit(lay.n_dof, {lay.planet(n, 0): jnp.sin(a), lay.planet(n, 1): -jnp.cos(a), lay.planet(n, 2): -1.0})
 
 
-def elastic_ring_part(p: PlanetaryParams, theta):
-    """Ring part of g (over the ring DOFs) at contact angle ``theta``: ``sin a u_r + cos a (u_tau - e u_theta)``."""
+def elastic_ring_part(p: PlanetaryParams, theta, nodal_inverse=None):
+    """Ring part of g (over the ring DOFs) at contact angle ``theta``:
+    ``sin a u_r + cos a (u_tau - e u_theta)``. ``nodal_inverse``: the ring's
+    :func:`~pgtjax.models.ring.ring_nodal_inverse` if already formed."""
     a = p.mesh.pressure_angle
-    rows = ring_interpolation(p.ring, theta)
+    rows = ring_interpolation(p.ring, theta, nodal_inverse)
     return jnp.sin(a) * rows[0] + jnp.cos(a) * (rows[1] - p.pitch_offset * rows[2])
 
 
@@ -355,6 +357,9 @@ class ContactDirections(eqx.Module):
     constant: jax.Array  # (n_dof, 2N) lumped parts
     params: PlanetaryParams
     lay: Layout
+    # the ring elements' shape-function inverse (6, 6), independent of t: formed with the system so that a
+    # time loop (and its reverse pass) does not refactorize it at every step
+    ring_nodal_inverse: jax.Array | None = None
 
     def __call__(self, t):
         p, lay = self.params, self.lay
@@ -362,7 +367,8 @@ class ContactDirections(eqx.Module):
             return self.constant
         psi = jnp.asarray(p.planet_angles())
         thetas = p.mesh.carrier_speed * t + psi
-        ring_cols = jax.vmap(lambda th: elastic_ring_part(p, th))(thetas)  # (N, n_ring)
+        part = lambda th: elastic_ring_part(p, th, self.ring_nodal_inverse)  # noqa: E731
+        ring_cols = jax.vmap(part)(thetas)  # (N, n_ring)
         return self.constant.at[lay.ring_start: lay.ring_start + lay.n_ring, p.n_planets:].add(ring_cols.T)
 
 
@@ -374,7 +380,8 @@ def contact_directions(p: PlanetaryParams, lay: Layout) -> ContactDirections:
         if p.ring_model == "rigid":
             g = g.at[lay.ring_start: lay.ring_start + 3].add(rigid_ring_part(p, p.planet_angles()[k]))
         cols.append(g)
-    return ContactDirections(jnp.stack(cols, axis=1), p, lay)
+    nodal_inverse = ring_nodal_inverse(p.ring) if p.ring_model == "elastic" else None
+    return ContactDirections(jnp.stack(cols, axis=1), p, lay, nodal_inverse)
 
 
 class MeshStiffness(eqx.Module):

@@ -58,6 +58,7 @@ __all__ = [
     "assemble_ring",
     "support_stiffness_matrix",
     "tooth_mass_matrix",
+    "ring_nodal_inverse",
     "ring_shape_at",
     "ring_interpolation",
     "ring_load_vector",
@@ -272,12 +273,19 @@ def support_stiffness_matrix(p: RingParams):
     return jnp.diag(ks)
 
 
-def ring_shape_at(p: RingParams, theta):
+def ring_nodal_inverse(p: RingParams):
+    """The elements' (identical) :func:`~pgtjax.models.curved_beam.nodal_inverse`, (6, 6): form it once
+    and pass it to :func:`ring_shape_at` / :func:`ring_interpolation` when evaluating at many angles."""
+    return cb.nodal_inverse(p.element_angle, p.radius, p.area, p.second_moment)
+
+
+def ring_shape_at(p: RingParams, theta, nodal_inverse=None):
     """Element DOFs and shape-function matrix at global angle ``theta`` [rad] (any real, wraps 2 pi).
 
     Returns ``(dofs, n)``: ``dofs`` (6,) int global DOF indices of the element containing ``theta``
     and ``n`` (3, 6) the rows (u_r, u_tau, u_theta) of ``N = H B^-1`` (Eq. 3.20) at that point.  A
     point exactly on a node gives the unit rows of that node.  Branch-free (``floor``/``mod``).
+    ``nodal_inverse``: :func:`ring_nodal_inverse` of ``p`` if already formed (else formed here).
     """
     L = p.n_elements
     a = p.element_angle
@@ -286,21 +294,21 @@ def ring_shape_at(p: RingParams, theta):
     s = th - e * a
     e = e.astype(jnp.int32)
     dofs = jnp.concatenate([3 * e + jnp.arange(3), 3 * jnp.mod(e + 1, L) + jnp.arange(3)])
-    n = cb.element_shape_matrix(s, a, p.radius, p.area, p.second_moment)
+    n = cb.element_shape_matrix(s, a, p.radius, p.area, p.second_moment, nodal_inverse)
     return dofs, n
 
 
-def ring_interpolation(p: RingParams, theta):
+def ring_interpolation(p: RingParams, theta, nodal_inverse=None):
     """Dense rows ``a(theta)`` (3 x 3L) of the global shape-function matrix (Eqs. 6.4, 6.15).
 
     ``a @ U`` = (u_r [m], u_tau [m], u_theta [rad]) of the rim at ``theta``; ``a[:2].T @ (F_r, F_tau)``
-    = work-equivalent nodal forces of a point load (Eq. 6.11).
+    = work-equivalent nodal forces of a point load (Eq. 6.11). ``nodal_inverse`` as :func:`ring_shape_at`.
     """
-    dofs, n = ring_shape_at(p, theta)
+    dofs, n = ring_shape_at(p, theta, nodal_inverse)
     return jnp.zeros((3, p.n_dof), dtype=n.dtype).at[:, dofs].add(n)
 
 
-def ring_load_vector(p: RingParams, theta, f_radial, f_tangential):
+def ring_load_vector(p: RingParams, theta, f_radial, f_tangential, nodal_inverse=None):
     """Global nodal force vector (3L,) [N, N, N m] of a point load at angle ``theta`` [rad].
 
     ``f_radial`` [N] acts along the element's ``u_r`` direction (positive **inward**, towards the
@@ -308,8 +316,9 @@ def ring_load_vector(p: RingParams, theta, f_radial, f_tangential):
     (Eq. 6.11 / 3.21: work-equivalent, ``F . U = f_r u_r(theta) + f_tau u_tau(theta)`` for every ``U``).
     Note Eqs. 6.13-6.14 and 3.21 use different sign conventions for the mesh-force components
     (ERRATA); the caller projects the mesh force onto (radial-inward, tangential-ccw) itself.
+    ``nodal_inverse`` as :func:`ring_shape_at`.
     """
-    dofs, n = ring_shape_at(p, theta)
+    dofs, n = ring_shape_at(p, theta, nodal_inverse)
     loc = n[0] * f_radial + n[1] * f_tangential
     return jnp.zeros((p.n_dof,), dtype=loc.dtype).at[dofs].add(loc)
 

@@ -68,7 +68,14 @@ import numpy as np
 
 from .. import params as _params
 from ..system import System
-from .ring import RingParams, ring_dof_names, ring_interpolation, ring_load_vector, ring_matrices
+from .ring import (
+    RingParams,
+    ring_dof_names,
+    ring_interpolation,
+    ring_load_vector,
+    ring_matrices,
+    ring_nodal_inverse,
+)
 
 __all__ = [
     "RingMovingLoadParams",
@@ -247,6 +254,8 @@ class MovingLoads(eqx.Module):
     """The N moving loads as functions of time (Eqs. 6.11-6.17): angles, nodal load vector, noise input."""
 
     params: RingMovingLoadParams
+    # the ring elements' shape-function inverse, formed once with the system (not at every t)
+    nodal_inverse: jax.Array | None = None
 
     def angles(self, t):
         """theta_n(t) [rad], (N,)."""
@@ -265,7 +274,7 @@ class MovingLoads(eqx.Module):
         """g(theta_n(t)) for every load, (N, 3 L): nodal forces of a unit mesh force (Eqs. 6.11, 6.13-6.14)."""
         p = self.params
         s, c = jnp.sin(p.pressure_angle), jnp.cos(p.pressure_angle)
-        return jax.vmap(lambda th: ring_load_vector(p.ring, th, -s, -c))(self.angles(t))
+        return jax.vmap(lambda th: ring_load_vector(p.ring, th, -s, -c, self.nodal_inverse))(self.angles(t))
 
     def nodal_forces(self, t):
         """Deterministic global load vector F_d(t) [N, N, N m], (3 L,)."""
@@ -288,7 +297,7 @@ class _Outputs(eqx.Module):
         ring = self.loads.params.ring
         rows = []
         if self.contact:
-            rows.append(ring_interpolation(ring, self.loads.angles(t)[0])[0])
+            rows.append(ring_interpolation(ring, self.loads.angles(t)[0], self.loads.nodal_inverse)[0])
         if self.mid:
             rows.append(jnp.zeros((ring.n_dof,)).at[self.mid_dof].set(1.0))
         return jnp.stack(rows)
@@ -390,7 +399,7 @@ def ring_moving_load_system(
         raise ValueError(f"`n_modes` must be None (full model) or an integer in [1, {L3}], got {n_modes!r}")
     M, K = ring_matrices(p.ring)
     C = _damping_matrix(p, M, K)
-    loads = MovingLoads(p)
+    loads = MovingLoads(p, ring_nodal_inverse(p.ring))
     if n_modes is None:
         basis = residual = None
         names = ring_dof_names(p.ring)
