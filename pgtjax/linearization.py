@@ -102,14 +102,6 @@ def _end_terms(law, nc: int, criterion: str, z, data: _StepData) -> _EndTerms:
     return _EndTerms(lin, r_inv)
 
 
-class _Jacobian(NamedTuple):
-    """``dR/dz`` and the law's per-contact derivatives it was built from (reused by the tangent rule)."""
-
-    matrix: jax.Array  # (2 nc, 2 nc)
-    d_mu: Linearization  # (d k_e / d mu_j, d f_0 / d mu_j) of each contact j
-    d_sigma: Linearization
-
-
 class _Moments(NamedTuple):
     """The step-end contact moments implied by a linearization: T(z) of the fixed-point map."""
 
@@ -140,24 +132,26 @@ def _law_derivatives(law, criterion: str, z, data: _StepData, wrt):
     return out
 
 
-def _jacobian(nc: int, z, terms: _EndTerms, moments: _Moments, data: _StepData, d_mu, d_sigma) -> _Jacobian:
-    """``dR/dz`` in closed form (formulas in :func:`_evaluate`)."""
+def _jacobian(nc: int, z, terms: _EndTerms, moments: _Moments, data: _StepData, d_mu, d_sigma) -> jax.Array:
+    """``dR/dz`` (2 nc, 2 nc) in closed form from the law's derivatives (formulas in :func:`_evaluate`)."""
     d = terms.r_inv @ data.coupling
     gap = moments.mean - z[:nc]
-    # D_ij cov_ji / sigma_i, zero where sigma_i = 0 (where the derivative of safe_sqrt is zero)
-    d_cov = d * moments.cov.T / jnp.where(moments.std > 0.0, moments.std, jnp.inf)[:, None]
+    # D_ij (cov_ij + cov_ji) / (2 sigma_i), zero where sigma_i = 0 (where safe_sqrt's derivative is zero);
+    # cov is symmetric up to rounding, and its symmetric part keeps the formula exact regardless
+    cov_sym = 0.5 * (moments.cov + moments.cov.T)
+    d_cov = d * cov_sym / jnp.where(moments.std > 0.0, moments.std, jnp.inf)[:, None]
     k_e = terms.lin.k_e
     jacobian = -jnp.block([
         [d * (d_mu.k_e * gap + d_mu.f_0 - k_e)[None, :], d * (d_sigma.k_e * gap + d_sigma.f_0)[None, :]],
         [d_cov * d_mu.k_e[None, :], d_cov * d_sigma.k_e[None, :]],
     ])
-    return _Jacobian(jacobian - jnp.eye(2 * nc, dtype=z.dtype), d_mu, d_sigma)
+    return jacobian - jnp.eye(2 * nc, dtype=z.dtype)
 
 
 def _evaluate(law, nc: int, criterion: str, z, data: _StepData, with_jacobian: bool = False):
     """The residual ``R(z) = T(z) - z`` of the fixed-point map T (the step-end contact moments implied by
     linearizing at ``z = (mu, sigma)``), the :class:`_EndTerms` at ``z`` and, optionally, ``dR/dz``
-    (a :class:`_Jacobian`).
+    (a (2 nc, 2 nc) matrix).
 
     ``G^T (A + G K_e G^T)^-1 = (I + S K_e)^-1 G^T A^-1`` (push-through identity), so the map needs only
     contact-space (nc x nc) algebra: with ``R = I + S K_e``, ``mean = R^-1 (m - S (f_0 - K_e mu))`` and
@@ -166,7 +160,7 @@ def _evaluate(law, nc: int, criterion: str, z, data: _StepData, with_jacobian: b
 
         d mean_i / d mu_j    = -D_ij (k_e,mu_j (mean_j - mu_j) + f_0,mu_j - k_e_j)
         d mean_i / d sigma_j = -D_ij (k_e,sigma_j (mean_j - mu_j) + f_0,sigma_j)
-        d sigma_i / d x_j    = -D_ij cov_ji k_e,x_j / sigma_i          (x = mu or sigma)
+        d sigma_i / d x_j    = -D_ij cov_ji k_e,x_j / sigma_i          (x = mu or sigma; cov symmetric)
 
     where ``k_e,x`` and ``f_0,x`` are the law's own derivatives (one forward-mode pass each).
     """
@@ -201,7 +195,8 @@ def _implicit_solution_jvp(law, nc, criterion, primals, tangents):
     ``dA = dS K_e + S dK_e``; with ``dR^-1 = -R^-1 dA R^-1`` and ``mean = R^-1 c``:
 
         d mean = R^-1 (dm - dS f~ - S df~ - dA mean),   f~ = f_0 - K_e mu,  df~ = df_0 - dK_e mu
-        d var_i = 2 sum_j (dR^-1)_ij (R^-1 Y)_ij + sum_j (R^-1 dY)_ij (R^-1)_ij,   d std = d var / (2 std)
+        d var_i = sum_j (dR^-1)_ij (R^-1 (Y + Y^T))_ij + sum_j (R^-1 dY)_ij (R^-1)_ij
+        d std = d var / (2 std)   (zero where std = 0, as safe_sqrt's derivative)
 
     which is ``dR/ddata``; then ``dz = -J^-1 dR/ddata``, and the end terms move with both ``dz`` and the data:
     ``dK_e = (data part) + k_e,mu dmu + k_e,sigma dsigma`` and ``dR^-1 = -R^-1 (dS K_e + S dK_e) R^-1``.
@@ -214,8 +209,8 @@ def _implicit_solution_jvp(law, nc, criterion, primals, tangents):
     s_mat = data.coupling
     moments = _implied_moments(nc, z_star, terms, data)
     d_mu, d_sigma, d_k, d_b = _law_derivatives(law, criterion, z_star, data, ("mu", "sigma", "k", "b"))
-    jac_inv = jnp.linalg.inv(_jacobian(nc, z_star, terms, moments, data, d_mu, d_sigma).matrix)
-    r_inv_y = r_inv @ data.covariance
+    jac_inv = jnp.linalg.inv(_jacobian(nc, z_star, terms, moments, data, d_mu, d_sigma))
+    r_inv_y = r_inv @ (data.covariance + data.covariance.T)  # Y + Y^T: exact even for a rounded, asymmetric Y
     inv_std = jnp.where(moments.std > 0.0, 0.5 / jnp.where(moments.std > 0.0, moments.std, 1.0), 0.0)
     kept = (moments.mean, inv_std, d_mu, d_sigma, d_k, d_b, jac_inv, r_inv_y)
     mean, inv_std, d_mu, d_sigma, d_k, d_b, jac_inv, r_inv_y = checkpoint_name(kept, _FIXED_POINT_NAME)
@@ -225,7 +220,7 @@ def _implicit_solution_jvp(law, nc, criterion, primals, tangents):
     d_a = d_s * lin.k_e[None, :] + s_mat * d_lin.k_e[None, :]
     f_tilde = lin.f_0 - lin.k_e * mu
     d_mean = r_inv @ (d_data.mean - d_s @ f_tilde - s_mat @ (d_lin.f_0 - d_lin.k_e * mu) - d_a @ mean)
-    d_var = (-2.0 * jnp.sum((r_inv @ d_a @ r_inv) * r_inv_y, axis=1)
+    d_var = (-jnp.sum((r_inv @ d_a @ r_inv) * r_inv_y, axis=1)
              + jnp.sum((r_inv @ d_data.covariance) * r_inv, axis=1))
     d_z = -jac_inv @ jnp.concatenate([d_mean, d_var * inv_std])
     d_lin = jax.tree.map(lambda a, b, c: a + b * d_z[:nc] + c * d_z[nc:], d_lin, d_mu, d_sigma)
@@ -248,7 +243,7 @@ def _solve_fixed_point(system, z0, data, criterion, rtol, max_iter):
         return jnp.max(jnp.abs(r) / jnp.concatenate([scale, scale]))
 
     def newton_step(z, r, jac):
-        z_newton = z + jnp.linalg.solve(jac.matrix, -r)
+        z_newton = z + jnp.linalg.solve(jac, -r)
         z_new = jnp.where(jnp.all(jnp.isfinite(z_newton)), z_newton, z + r)  # fixed-point step as fallback
         return z_new.at[nc:].set(jnp.maximum(z_new[nc:], 0.0))
 
@@ -540,12 +535,12 @@ def solve_moments(
         max_iter: Newton iterations allowed per step.
         throw: raise if a step's fixed point does not converge or a NaN appears (works under ``jit``);
             with ``False`` the flags are returned in the result (``converged``, ``iterations``, ``residual``).
-        checkpoint: rematerialize each saved block in reverse mode (memory ~ number of saves, not steps).
-            The fixed points' solutions and their tangent rule's contact-space quantities are kept (a few
-            hundred numbers per step), so the rematerialization repeats neither iterations nor that algebra.
-            With ``save_every = 1`` each rematerialized step and its transpose form one loop body; longer
-            blocks also stack each step's residuals for the block's reverse loop (measured: the gradient
-            costs about 4x the forward run at ``save_every = 1`` and about 5x at 2, planetary model).
+        checkpoint: rematerialize each saved block in reverse mode: the state is kept once per saved block,
+            plus, per step, the fixed point's solution and its tangent rule's contact-space quantities (about
+            6 nc^2 + 16 nc numbers), so that the rematerialization repeats neither the iterations nor that
+            algebra. With ``save_every = 1`` each rematerialized step and its transpose form one loop body;
+            longer blocks also stack each step's residuals for the block's reverse loop, which costs more
+            (``benchmarks/bench_planetary.py`` times both).
         observables: optional :class:`pgtjax.Observables` ``y = C(t) u`` whose mean and standard deviation
             are reported (``mean_obs``, ``std_obs``).
     """

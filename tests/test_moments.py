@@ -216,7 +216,7 @@ def test_closed_form_fixed_point_jacobian_equals_forward_mode_autodiff(criterion
     law = pg.Backlash()
     z = jnp.array([2e-5, -1e-5, 0.3e-5, 1.5e-5, 1e-5, 0.5e-5, 2e-5, 0.0])
     residual, terms, jacobian = _evaluate(law, nc, criterion, z, data, with_jacobian=True)
-    jac = jacobian.matrix
+    jac = jacobian
     jac_ad = jax.jacfwd(lambda zz: _evaluate(law, nc, criterion, zz, data)[0])(z)
     assert jac.dtype == jnp.float64
     np.testing.assert_allclose(jac, jac_ad, rtol=1e-10, atol=1e-12 * float(jnp.max(jnp.abs(jac_ad))))
@@ -250,17 +250,25 @@ def test_implicit_tangent_of_end_terms_equals_autodiff(criterion):
         assert got.dtype == jnp.float64
         np.testing.assert_allclose(got, want, rtol=1e-10, atol=1e-12 * float(jnp.max(jnp.abs(want))))
 
+@pytest.mark.parametrize("case", ["general", "zero_std", "asymmetric_y"])
 @pytest.mark.parametrize("criterion", ["force", "energy", "energy_origin"])
-def test_implicit_tangent_of_fixed_point_equals_autodiff_formula(criterion):
+def test_implicit_tangent_of_fixed_point_equals_autodiff_formula(criterion, case):
     """The closed-form tangent of the converged point, ``dz = -J^-1 (dR/ddata) ddata``, against the same
     formula built from plain autodiff: J by jacfwd of the residual in z, dR/ddata by a jvp of the residual
-    in the data."""
+    in the data. Also where a contact's implied std is zero (uncoupled contacts, Y with a zero row and
+    column: the std derivative is zero there, as safe_sqrt's) and where rounding left Y asymmetric."""
     import jax
 
     from pgtjax.linearization import _end_terms, _evaluate, _implicit_solution
 
     nc = 4
     data = _contact_space_data(nc, 5)
+    if case == "zero_std":
+        keep = jnp.ones(nc).at[1].set(0.0)
+        data = data._replace(coupling=jnp.diag(jnp.diagonal(data.coupling)),
+                             covariance=data.covariance * keep[:, None] * keep[None, :])
+    elif case == "asymmetric_y":
+        data = data._replace(covariance=data.covariance * (1.0 + 1e-3 * jnp.triu(jnp.ones((nc, nc)), 1)))
     d_data = jax.tree.map(lambda x: x * jnp.linspace(0.5, 1.5, x.size).reshape(x.shape) * 1e-2,
                           _contact_space_data(nc, 6))
     law = pg.Backlash()
@@ -270,6 +278,8 @@ def test_implicit_tangent_of_fixed_point_equals_autodiff_formula(criterion):
     residual = lambda zz, dd: _evaluate(law, nc, criterion, zz, dd)[0]  # noqa: E731
     jac = jax.jacfwd(residual)(z, data)
     _, d_res = jax.jvp(lambda dd: residual(z, dd), (data,), (d_data,))
+    if case == "zero_std":
+        assert float(d_res[nc + 1]) == 0.0  # the zero-std contact's std row
     want = -np.linalg.solve(np.asarray(jac), np.asarray(d_res))
     assert d_z.dtype == jnp.float64
     np.testing.assert_allclose(d_z, want, rtol=1e-9, atol=1e-12 * float(np.max(np.abs(want))))

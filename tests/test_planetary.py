@@ -242,19 +242,21 @@ def test_gradients_wrt_rim_thickness_and_support_stiffness_match_finite_differen
 def test_gradient_independent_of_save_interval_checkpointing_and_mode():
     """The reverse pass keeps the fixed points' solutions and their tangent rule's quantities (checkpoint
     policy) instead of recomputing them: the gradient must not depend on how the run is split into saved
-    blocks, on whether blocks are rematerialized at all, nor differ from forward mode."""
+    blocks, on whether blocks are rematerialized at all, nor differ from forward mode. (A consistency check
+    of the reverse-mode plumbing; correctness against finite differences is the test above.)"""
     import equinox as eqx
 
     base = small_params(n_elements=12)
     lay = pm.layout(base)
-    node = lay.ring_start + 3 * 1
+    node = lay.ring_start + 3 * 1  # radial DOF of ring node 1
 
     def response(x, save_every, checkpoint):
         ring = eqx.tree_at(lambda r: (r.thickness, r.radius, r.k_support_radial), base.ring,
                            (x[0], base.ring_pitch_radius + x[0] / 2, x[1]))
         p = eqx.tree_at(lambda q: q.ring, base, ring)
+        p0 = pm.wind_filter_stationary_covariance(p, lay)
         r = pg.solve_moments(pm.planetary(p), dt=0.0027, n_steps=6, save_every=save_every, rtol=1e-13,
-                             checkpoint=checkpoint, initial_covariance=pm.wind_filter_stationary_covariance(p, lay))
+                             checkpoint=checkpoint, initial_covariance=p0)
         return r.std_u[-1, node]  # the same time whatever the save interval
 
     x = jnp.array([0.128, 1.362e10])

@@ -213,21 +213,21 @@ def nodal_inverse(angle, radius, area, second_moment):
 
 
 @jax.jit
-def element_shape_matrix(s, angle, radius, area, second_moment, nodal_inverse=None):
+def element_shape_matrix(s, angle, radius, area, second_moment, inverse=None):
     """Shape-function matrix ``N(s) = H(s) B^-1`` (3 x 6) (Eqs. 3.20, 6.4-6.5 with ERRATA).
 
     Args:
         s: local angle [rad] measured from node 1 of the element (0 <= s <= angle; values outside
             extrapolate the same functions).
         angle: element arc angle [rad]; radius [m]; area [m^2]; second_moment [m^4].
-        nodal_inverse: the element's :func:`nodal_inverse` if already formed (else formed here).
+        inverse: the element's :func:`nodal_inverse` if already formed (else formed here).
 
     Returns:
         (3, 6) array; rows give (u_r [m], u_tau [m], u_theta [rad]) at ``s`` per unit nodal DOF, columns
         are ``(u_r1, u_tau1, u_theta1, u_r2, u_tau2, u_theta2)``.
     """
     delta = second_moment / (area * radius**2)
-    c = _nodal_inverse(angle, radius, delta) if nodal_inverse is None else nodal_inverse
+    c = _nodal_inverse(angle, radius, delta) if inverse is None else inverse
     return _recombined(s - 0.5 * angle, 0.5 * angle, radius, delta)[0] @ c
 
 

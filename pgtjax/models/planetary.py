@@ -358,7 +358,8 @@ class ContactDirections(eqx.Module):
     params: PlanetaryParams
     lay: Layout
     # the ring elements' shape-function inverse (6, 6), independent of t: formed with the system so that a
-    # time loop (and its reverse pass) does not refactorize it at every step
+    # time loop (and its reverse pass) does not refactorize it at every step. Like ``constant`` it is derived
+    # from ``params`` when built: rebuild with :func:`contact_directions` after changing the ring.
     ring_nodal_inverse: jax.Array | None = None
 
     def __call__(self, t):

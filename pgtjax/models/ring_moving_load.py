@@ -254,7 +254,8 @@ class MovingLoads(eqx.Module):
     """The N moving loads as functions of time (Eqs. 6.11-6.17): angles, nodal load vector, noise input."""
 
     params: RingMovingLoadParams
-    # the ring elements' shape-function inverse, formed once with the system (not at every t)
+    # the ring elements' shape-function inverse, formed once with the system (not at every t); derived from
+    # ``params.ring`` when built
     nodal_inverse: jax.Array | None = None
 
     def angles(self, t):

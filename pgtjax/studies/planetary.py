@@ -27,7 +27,7 @@ from ..deterministic import static_equilibrium
 from ..linearization import solve_moments
 from ..modal import modal_analysis
 from ..models import planetary as pm
-from ..models.ring import ring_interpolation
+from ..models.ring import ring_interpolation, ring_nodal_inverse
 from ..montecarlo import monte_carlo
 from ..results import MomentResult, MonteCarloResult, save_results
 from ..system import Observables
@@ -55,9 +55,10 @@ def contact_point_observables(p: pm.PlanetaryParams, planet: int = 0) -> Observa
     """Ring displacement (inward radial, tangential; m) at the moving contact point of a planet (Fig. 3.9)."""
     lay = pm.layout(p)
     psi = float(p.planet_angles()[planet])
+    inverse = ring_nodal_inverse(p.ring)  # formed once, not at every time step
 
     def matrix(t):
-        rows = ring_interpolation(p.ring, p.mesh.carrier_speed * t + psi)[:2]
+        rows = ring_interpolation(p.ring, p.mesh.carrier_speed * t + psi, inverse)[:2]
         return jnp.zeros((2, lay.n_dof)).at[:, lay.ring_start: lay.ring_start + lay.n_ring].set(rows)
 
     return Observables(matrix, names=[f"ring_contact{planet + 1}_radial", f"ring_contact{planet + 1}_tangential"])
