@@ -227,6 +227,20 @@ def test_closed_form_fixed_point_jacobian_equals_forward_mode_autodiff(criterion
                                atol=1e-12)
 
 
+def _tangent_case(criterion, data):
+    """A contact state ``z`` (one contact with sigma = 0, contacts in and out of the dead zone), its end terms
+    and a data tangent, for the tangent-rule tests."""
+    import jax
+
+    from pgtjax.linearization import _end_terms
+
+    nc = data.mean.shape[0]
+    d_data = jax.tree.map(lambda x: x * jnp.linspace(0.5, 1.5, x.size).reshape(x.shape) * 1e-2,
+                          _contact_space_data(nc, 6))
+    law = pg.Backlash()
+    z = jnp.array([2e-5, -1e-5, 0.3e-5, 1.5e-5, 1e-5, 0.5e-5, 2e-5, 0.0])
+    return law, z, _end_terms(law, nc, criterion, z, data), d_data
+
 
 @pytest.mark.parametrize("criterion", ["force", "energy"])
 def test_implicit_tangent_of_end_terms_equals_autodiff(criterion):
@@ -239,11 +253,7 @@ def test_implicit_tangent_of_end_terms_equals_autodiff(criterion):
 
     nc = 4
     data = _contact_space_data(nc, 5)
-    d_data = jax.tree.map(lambda x: x * jnp.linspace(0.5, 1.5, x.size).reshape(x.shape) * 1e-2,
-                          _contact_space_data(nc, 6))
-    law = pg.Backlash()
-    z = jnp.array([2e-5, -1e-5, 0.3e-5, 1.5e-5, 1e-5, 0.5e-5, 2e-5, 0.0])
-    terms = _end_terms(law, nc, criterion, z, data)
+    law, z, terms, d_data = _tangent_case(criterion, data)
     _, (d_z, d_terms) = jax.jvp(lambda d: _implicit_solution(law, nc, criterion, z, terms, d), (data,), (d_data,))
     _, d_terms_ad = jax.jvp(lambda zz, dd: _end_terms(law, nc, criterion, zz, dd), (z, data), (d_z, d_data))
     for got, want in zip(jax.tree.leaves(d_terms), jax.tree.leaves(d_terms_ad)):
@@ -259,7 +269,7 @@ def test_implicit_tangent_of_fixed_point_equals_autodiff_formula(criterion, case
     column: the std derivative is zero there, as safe_sqrt's) and where rounding left Y asymmetric."""
     import jax
 
-    from pgtjax.linearization import _end_terms, _evaluate, _implicit_solution
+    from pgtjax.linearization import _evaluate, _implicit_solution
 
     nc = 4
     data = _contact_space_data(nc, 5)
@@ -269,11 +279,7 @@ def test_implicit_tangent_of_fixed_point_equals_autodiff_formula(criterion, case
                              covariance=data.covariance * keep[:, None] * keep[None, :])
     elif case == "asymmetric_y":
         data = data._replace(covariance=data.covariance * (1.0 + 1e-3 * jnp.triu(jnp.ones((nc, nc)), 1)))
-    d_data = jax.tree.map(lambda x: x * jnp.linspace(0.5, 1.5, x.size).reshape(x.shape) * 1e-2,
-                          _contact_space_data(nc, 6))
-    law = pg.Backlash()
-    z = jnp.array([2e-5, -1e-5, 0.3e-5, 1.5e-5, 1e-5, 0.5e-5, 2e-5, 0.0])
-    terms = _end_terms(law, nc, criterion, z, data)
+    law, z, terms, d_data = _tangent_case(criterion, data)
     _, (d_z, _) = jax.jvp(lambda d: _implicit_solution(law, nc, criterion, z, terms, d), (data,), (d_data,))
     residual = lambda zz, dd: _evaluate(law, nc, criterion, zz, dd)[0]  # noqa: E731
     jac = jax.jacfwd(residual)(z, data)
