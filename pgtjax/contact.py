@@ -95,9 +95,12 @@ def _standardize(offset, sigma):
     return jnp.clip(z, -_Z_SATURATION, _Z_SATURATION)
 
 
-def _positive_part_mean(offset, sigma, z):
-    """E[X+] for X ~ N(offset, sigma^2) = offset Phi(z) + sigma phi(z)."""
-    return offset * _cdf(z) + sigma * _pdf(z)
+def _positive_part_mean(offset, sigma, z, cdf=None, pdf=None):
+    """E[X+] for X ~ N(offset, sigma^2) = offset Phi(z) + sigma phi(z) (Phi(z), phi(z) computed here unless
+    given)."""
+    cdf = _cdf(z) if cdf is None else cdf
+    pdf = _pdf(z) if pdf is None else pdf
+    return offset * cdf + sigma * pdf
 
 
 def _flank_values(criterion, offset, sigma):
@@ -105,7 +108,7 @@ def _flank_values(criterion, offset, sigma):
     of the excess term with respect to ``z`` (None for the force criterion)."""
     z = _standardize(offset, sigma)
     cdf, pdf = _cdf(z), _pdf(z)
-    stats = [cdf, offset * cdf + sigma * pdf]
+    stats = [cdf, _positive_part_mean(offset, sigma, z, cdf, pdf)]
     d_excess = None
     if criterion == "energy":
         # (E[(X+)^2] - max(E[X], 0)^2) / sigma^2 without cancellation: for z > 0,

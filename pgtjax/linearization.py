@@ -220,11 +220,12 @@ def _implicit_solution_jvp(law, nc, criterion, primals, tangents):
     d_a = d_s * lin.k_e[None, :] + s_mat * d_lin.k_e[None, :]
     f_tilde = lin.f_0 - lin.k_e * mu
     d_mean = r_inv @ (d_data.mean - d_s @ f_tilde - s_mat @ (d_lin.f_0 - d_lin.k_e * mu) - d_a @ mean)
-    d_var = (-jnp.sum((r_inv @ d_a @ r_inv) * r_inv_y, axis=1)
-             + jnp.sum((r_inv @ d_data.covariance) * r_inv, axis=1))
+    d_r_inv = -r_inv @ d_a @ r_inv  # data part; the part through z is added below
+    d_var = jnp.sum(d_r_inv * r_inv_y, axis=1) + jnp.sum((r_inv @ d_data.covariance) * r_inv, axis=1)
     d_z = -jac_inv @ jnp.concatenate([d_mean, d_var * inv_std])
-    d_lin = jax.tree.map(lambda a, b, c: a + b * d_z[:nc] + c * d_z[nc:], d_lin, d_mu, d_sigma)
-    d_r_inv = -r_inv @ (d_s * lin.k_e[None, :] + s_mat * d_lin.k_e[None, :]) @ r_inv
+    d_k_e_z = d_mu.k_e * d_z[:nc] + d_sigma.k_e * d_z[nc:]
+    d_lin = Linearization(d_lin.k_e + d_k_e_z, d_lin.f_0 + d_mu.f_0 * d_z[:nc] + d_sigma.f_0 * d_z[nc:])
+    d_r_inv = d_r_inv - r_inv @ (s_mat * d_k_e_z[None, :]) @ r_inv
     return (z_star, terms), (d_z, _EndTerms(d_lin, d_r_inv))
 
 
