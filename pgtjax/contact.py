@@ -159,10 +159,16 @@ class ContactLaw(eqx.Module):
     contact j depend only on contact j's arguments): the SL solver's closed-form Newton Jacobian relies on it.
     A law whose ``stiffness`` is always either 0 or ``k`` sets ``on_off_stiffness = True``: Monte Carlo then
     inverts the contact-space Newton Jacobians of all 2^nc contact patterns once per step instead of once per
-    sample and iteration.
+    sample and iteration. A piecewise-affine law may also implement ``affine_piece``: a Newton step that stays
+    inside one affine piece is then exact, which Monte Carlo checks instead of evaluating the residual.
     """
 
     on_off_stiffness: ClassVar[bool] = False
+
+    def affine_piece(self, delta, k, b):
+        """Integer label of the interval of ``delta`` on which the law is affine, elementwise; ``None`` if the
+        law is not piecewise affine (the default)."""
+        return None
 
     @abc.abstractmethod
     def force(self, delta, k, b): ...
@@ -218,6 +224,10 @@ class Backlash(ContactLaw):
             return Linearization(k_force, f_0)
         excess = stats[2]
         return Linearization(2.0 / 3.0 * (k_force + 0.5 * k * (excess[0] + excess[1])), f_0)
+
+    def affine_piece(self, delta, k, b):
+        # 0: inside the backlash (f = 0), 1: upper flank (k (delta - b)), 2: lower flank (k (delta + b))
+        return jnp.where(delta > b, 1, jnp.where(delta < -b, 2, 0))
 
     def solve_single(self, delta_lin, coupling, k, b):
         # Closed form: delta + s k (delta - b) = delta_lin on the upper flank iff delta_lin > b (s k >= 0).

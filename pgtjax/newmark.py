@@ -179,7 +179,10 @@ def solve_contacts_batch(delta_lin, coupling, k, b, law, *, tol=1e-12, max_iter=
     For a law with on/off stiffness (backlash) the Newton Jacobian ``I + S diag(k * active)`` depends only on
     the contact pattern, so the inverses of all 2^nc patterns are formed once (nc <= 8) and each sample's
     Newton step is a table look-up and an nc x nc product; otherwise each sample runs its own Newton solve.
-    Returns ``(delta, converged)`` of shapes (batch, nc) and (batch,).
+    For a piecewise-affine law (``law.affine_piece``) the first Newton step, taken from ``delta_lin``, is
+    exact for every sample whose contacts all stay in their affine piece; the residual iteration then runs
+    only if some sample of the batch changed piece. Returns ``(delta, converged)`` of shapes (batch, nc) and
+    (batch,).
     """
     nc = delta_lin.shape[1]
     if not law.on_off_stiffness or nc > _PATTERN_TABLE_MAX_CONTACTS:
@@ -193,10 +196,14 @@ def solve_contacts_batch(delta_lin, coupling, k, b, law, *, tol=1e-12, max_iter=
     def residual(d):
         return d + law.force(d, k[None, :], b[None, :]) @ coupling.T - delta_lin
 
+    def newton_step(d, r):
+        index = jnp.sum(jnp.where(law.stiffness(d, k[None, :], b[None, :]) > 0.0, bits[None, :], 0), axis=1)
+        table = inverses[index]  # (batch, nc, nc); column sums beat a batched matrix-vector product on CPU
+        return d - sum(table[:, :, j] * r[:, j : j + 1] for j in range(nc))
+
     def body(state):
         d, r, it, _ = state
-        index = jnp.sum(jnp.where((d > b[None, :]) | (d < -b[None, :]), bits[None, :], 0), axis=1)
-        d = d - jnp.einsum("sij,sj->si", inverses[index], r)
+        d = newton_step(d, r)
         r = residual(d)
         return d, r, it + 1, jnp.max(jnp.abs(r) / scale, axis=1)
 
@@ -204,10 +211,33 @@ def solve_contacts_batch(delta_lin, coupling, k, b, law, *, tol=1e-12, max_iter=
         _, _, it, err = state
         return (it < max_iter) & jnp.any(err > tol)
 
+    def iterate(d):
+        r = residual(d)
+        d, _, _, err = jax.lax.while_loop(cond, body, (d, r, jnp.array(0), jnp.max(jnp.abs(r) / scale, axis=1)))
+        return d, err <= tol
+
     r0 = residual(delta_lin)
-    err0 = jnp.max(jnp.abs(r0) / scale, axis=1)
-    d, _, _, err = jax.lax.while_loop(cond, body, (delta_lin, r0, jnp.array(0), err0))
-    return d, err <= tol
+    piece0 = law.affine_piece(delta_lin, k[None, :], b[None, :])
+    if piece0 is None:
+        d, _, _, err = jax.lax.while_loop(
+            cond, body, (delta_lin, r0, jnp.array(0), jnp.max(jnp.abs(r0) / scale, axis=1)))
+        return d, err <= tol
+    d1 = newton_step(delta_lin, r0)
+    exact = jnp.all(law.affine_piece(d1, k[None, :], b[None, :]) == piece0, axis=1)
+    return jax.lax.cond(jnp.all(exact), lambda d: (d, exact), iterate, d1)
+
+
+def solve_contact_forces(system: System, delta_lin, coupling, k):
+    """Contact forces (batch, nc) at the end of a step from the contact-free deflections ``delta_lin``
+    (batch, nc): solves ``delta + S f(delta) = delta_lin`` with ``S = G1^T K_eff^-1 G1`` (``coupling``) and
+    stiffnesses ``k`` (nc,). Returns ``(force, converged)``, converged of shape (batch,)."""
+    b, law = system.contacts.clearance, system.contacts.law
+    if delta_lin.shape[1] == 1:  # scalar contact: the law's own (closed-form where it exists) solve, no vmap
+        delta, ok = law.solve_single(delta_lin, coupling[0, 0], k[None, :], b[None, :])
+        ok = ok[:, 0]
+    else:
+        delta, ok = solve_contacts_batch(delta_lin, coupling, k, b, law)
+    return law.force(delta, k[None, :], b[None, :]), ok
 
 
 def sample_step(system: System, state: SampleState, s0: Snapshot, s1: Snapshot, h, draws, noise_scheme: str,
@@ -243,16 +273,8 @@ def sample_step(system: System, state: SampleState, s0: Snapshot, s1: Snapshot, 
     if nc:
         kinv_g0, kinv_g1 = x[:, col : col + nc], x[:, col + nc : col + 2 * nc]
         u_lin = u_lin - state.force @ kinv_g0.T
-        coupling = s1.direction.T @ kinv_g1
-        k1, b = s1.contact_stiffness, system.contacts.clearance
-        law = system.contacts.law
-        delta_lin = u_lin @ s1.direction
-        if nc == 1:  # scalar contact: the law's own (closed-form where it exists) solve, no vmap
-            delta, ok = law.solve_single(delta_lin, coupling[0, 0], k1[None, :], b[None, :])
-            ok = ok[:, 0]
-        else:
-            delta, ok = solve_contacts_batch(delta_lin, coupling, k1, b, law)
-        force = system.contacts.law.force(delta, k1[None, :], b[None, :])
+        force, ok = solve_contact_forces(system, u_lin @ s1.direction, s1.direction.T @ kinv_g1,
+                                         s1.contact_stiffness)
         u1 = u_lin - force @ kinv_g1.T
     else:
         force = state.force

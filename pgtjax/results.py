@@ -108,7 +108,8 @@ class MonteCarloResult(_Labelled):
     ``mean_*``/``std_*`` as in :class:`MomentResult` (``std`` with the 1/(N-1) normalisation, thesis
     Eq. 4.66); ``histograms`` maps a quantity name to counts of shape ``(len(histogram_times), n_bins)`` over
     ``histogram_edges[name]``; ``unconverged`` counts (sample, step) pairs whose contact Newton solve did not
-    reach its tolerance.
+    reach its tolerance; ``propagation`` says whether the samples were stepped in physical or eigen-coordinates
+    (:mod:`pgtjax.eigenbasis`).
     """
 
     n_samples: int = eqx.field(static=True)
@@ -128,6 +129,7 @@ class MonteCarloResult(_Labelled):
     mean_obs: jax.Array
     std_obs: jax.Array
     observable_names: tuple[str, ...] = eqx.field(static=True, default=())
+    propagation: str = eqx.field(static=True, default="physical")  # coordinates the samples were stepped in
 
     def standard_error(self, what: str = "u"):
         """Standard errors (mean, std) of ``mean_<what>`` and ``std_<what>`` (normal approximation)."""

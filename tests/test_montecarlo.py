@@ -166,6 +166,96 @@ def test_constant_stiffness_mc_equals_time_function_mc():
     kw = dict(n_samples=200, key=KEY, dt=0.01, n_steps=100, save_every=10, progress=False)
     a = pg.monte_carlo(pg.System(stiffness=k, **common), **kw)
     b = pg.monte_carlo(pg.System(stiffness=pg.FourierSeries(k), **common), **kw)
+    assert (a.propagation, b.propagation) == ("eigen", "physical")  # the default picks each system's best path
     assert float(jnp.max(b.std_delta)) > 1e-3
     for x, y in [(a.mean_u, b.mean_u), (a.std_u, b.std_u), (a.std_delta, b.std_delta)]:
         np.testing.assert_allclose(x, y, rtol=0, atol=1e-9 * float(jnp.max(jnp.abs(y))))
+
+
+def _chain_with_contacts(n=14, seed=5):
+    """Lightly damped grounded chain (complex eigenvalue pairs), two backlash contacts that open and close,
+    a load, two noise inputs and a time-dependent observable."""
+    m, k = grounded_spring_chain(n, 400.0, seed)
+    g = np.zeros((n, 2))
+    g[[3, 9], [0, 1]], g[[4, 10], [0, 1]] = 1.0, -1.0
+    noise = np.zeros((n, 2))
+    noise[1, 0] = noise[n - 1, 1] = 1.0
+    contacts = pg.Contacts(direction=g, stiffness=[900.0, 600.0], clearance=[0.003, 0.004], names=["a", "b"])
+    system = pg.System(mass=m, stiffness=k, damping=0.002 * k + 0.05 * m, load=np.eye(n)[1] * 1.5,
+                       noise_input=noise, spectral_density=[0.04, 0.02], contacts=contacts)
+    obs = pg.Observables(lambda t: jnp.stack([jnp.eye(n)[2] * jnp.cos(t), jnp.eye(n)[7]]), names=["c", "d"])
+    return system, obs
+
+
+@pytest.mark.parametrize("scheme", ["trapezoidal", "newmark"])
+def test_eigen_coordinates_reproduce_the_physical_coordinate_scheme(scheme):
+    """Stepping the samples in the eigenbasis of the contact-free map is the same discretization: on the same
+    draws every statistic agrees with the physical-coordinate step to rounding."""
+    from pgtjax.eigenbasis import eigen_propagator
+
+    system, obs = _chain_with_contacts()
+    n = system.n_dof
+    prop, reason = eigen_propagator(system, 0.01)
+    assert reason == "" and prop.n_pairs > 0 and prop.condition < 1e4  # complex pairs and real eigenvalues
+    p0 = np.diag(np.r_[np.full(n, 1e-3), np.full(n, 1e-2)]) ** 2
+    kw = dict(n_samples=300, key=KEY, dt=0.01, n_steps=120, save_every=8, progress=False, noise_scheme=scheme,
+              initial_displacement=np.full(n, 2e-3), initial_covariance=p0, observables=obs,
+              histograms={"force:a": np.linspace(-3.0, 3.0, 13)}, histogram_times=[0.4, 1.2])
+    eig = pg.monte_carlo(system, propagation="eigen", **kw)
+    phys = pg.monte_carlo(system, propagation="physical", **kw)
+    assert (eig.propagation, phys.propagation) == ("eigen", "physical")
+    assert 0.05 < float(jnp.mean(phys.contact_loss_probability[1:])) < 0.95  # the contacts open and close
+    for name in ("mean_u", "std_u", "mean_v", "std_v", "mean_delta", "std_delta", "force_mean", "force_std",
+                 "mean_obs", "std_obs", "contact_loss_probability"):
+        a, b = np.asarray(getattr(eig, name)), np.asarray(getattr(phys, name))
+        assert a.dtype == np.float64
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-9 * np.max(np.abs(b)), err_msg=name)
+    # a sample may cross a bin edge by rounding: at most one count per bin
+    assert np.max(np.abs(np.asarray(eig.histograms["force:a"] - phys.histograms["force:a"]))) <= 1.0
+    assert float(eig.unconverged) == float(phys.unconverged) == 0.0
+
+
+def test_eigen_coordinates_refused_where_they_cannot_be_used():
+    from pgtjax.eigenbasis import eigen_propagator
+
+    kw = dict(n_samples=10, key=KEY, dt=0.02, n_steps=4, progress=False)
+    varying = time_varying_system()  # constant K and C: accepted
+    assert pg.monte_carlo(varying, **kw).propagation == "eigen"
+    varying_k = pg.System(mass=np.eye(2), stiffness=pg.FourierSeries(np.diag([200.0, 100.0])), damping=np.eye(2),
+                          noise_input=np.ones((2, 1)))
+    assert pg.monte_carlo(varying_k, **kw).propagation == "physical"
+    with pytest.raises(ValueError, match="propagation='eigen'.*K or C depends on time"):
+        pg.monte_carlo(varying_k, propagation="eigen", **kw)
+    with pytest.raises(ValueError, match="`propagation` must be one of"):
+        pg.monte_carlo(varying, propagation="modal", **kw)
+    # critically damped oscillator: the state matrix is defective, so is its Cayley transform
+    critical = pg.System(mass=[[1.0]], stiffness=[[1.0]], damping=[[2.0]], noise_input=[[1.0]])
+    prop, reason = eigen_propagator(critical, 0.02)
+    assert prop is None and "rejected" in reason
+    assert pg.monte_carlo(critical, **kw).propagation == "physical"
+
+
+@pytest.mark.parametrize("spread", [3e-3, 3e-2])
+def test_affine_piece_shortcut_equals_the_residual_iteration(spread):
+    """The backlash solve accepts the first Newton step where no contact leaves its affine piece; a law
+    without ``affine_piece`` iterates on the residual. Both agree, whether every sample stays in its piece
+    (large spread: contacts deep in mesh or far open) or many do not."""
+    from pgtjax.newmark import solve_contacts_batch
+
+    class ResidualOnly(pg.Backlash):
+        def affine_piece(self, delta, k, b):
+            return None
+
+    rng = np.random.default_rng(4)
+    nc = 3
+    a = rng.normal(size=(nc, nc))
+    coupling = jnp.asarray(a @ a.T * 1e-3 + 1e-3 * np.eye(nc))
+    k = jnp.asarray(rng.uniform(500.0, 1500.0, nc))
+    b = jnp.asarray(rng.uniform(0.5e-3, 2e-3, nc))
+    delta_lin = jnp.asarray(rng.normal(scale=spread, size=(500, nc)))
+    d_fast, ok_fast = solve_contacts_batch(delta_lin, coupling, k, b, pg.Backlash())
+    d_ref, ok_ref = solve_contacts_batch(delta_lin, coupling, k, b, ResidualOnly())
+    assert bool(jnp.all(ok_fast)) and bool(jnp.all(ok_ref))
+    np.testing.assert_allclose(d_fast, d_ref, rtol=0, atol=1e-13 * spread)
+    residual = d_fast + pg.Backlash().force(d_fast, k[None, :], b[None, :]) @ coupling.T - delta_lin
+    assert float(jnp.max(jnp.abs(residual))) < 1e-14 * spread / 3e-3
