@@ -107,8 +107,8 @@ def main():
     rss_gb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024**2
     print(f"MC {args.mc_samples} x {n_mc} steps: median {mc_med:.2f} s -> {per_sample_step * 1e9:.0f} ns per "
           f"sample-step; 100,000 samples x one period extrapolated {extrapolated / 60:.1f} min; peak RSS {rss_gb:.2f} GB")
-    print(f"  physical-coordinate baseline {physical_per_sample_step * 1e9:.0f} ns per sample-step: eigen-coordinates "
-          f"{physical_per_sample_step / per_sample_step:.2f}x faster")
+    print(f"  physical-coordinate baseline {physical_per_sample_step * 1e9:.0f} ns per sample-step: "
+          f"eigen-coordinates {physical_per_sample_step / per_sample_step:.2f}x faster")
     path = write("planetary", dict(
         command="python benchmarks/bench_planetary.py " + " ".join(
             f"--{k.replace('_', '-')} {','.join(map(str, v)) if isinstance(v, list) else v}"

@@ -151,8 +151,8 @@ def eigen_sample_step(system: System, prop: EigenPropagator, state: EigenSampleS
     step ``prop.h``. Returns the new state and the per-sample contact-solve flag.
 
     With ``z0 = y0 - f0 Q0^T`` the contact-free update ``Lambda z0 + inputs - f0 Q0^T`` is
-    ``Lambda y0 + inputs - f0 (Lambda Q0 + Q0)^T``: loads, noise and the start-of-step forces enter through one
-    product with a (1 + n_draws + nc, 2n) matrix; the end-of-step forces are left in ``y1``.
+    ``Lambda y0 + inputs - f0 (Lambda Q0 + Q0)^T``: loads, noise and the start-of-step forces enter through
+    one product with a (1 + n_draws + nc, 2n) matrix; the end-of-step forces are left in ``y1``.
     """
     h = prop.h
     columns = [jnp.ones((state.y.shape[0], 1), state.y.dtype)]

@@ -213,7 +213,8 @@ def solve_contacts_batch(delta_lin, coupling, k, b, law, *, tol=1e-12, max_iter=
 
     def iterate(d):
         r = residual(d)
-        d, _, _, err = jax.lax.while_loop(cond, body, (d, r, jnp.array(0), jnp.max(jnp.abs(r) / scale, axis=1)))
+        err = jnp.max(jnp.abs(r) / scale, axis=1)
+        d, _, _, err = jax.lax.while_loop(cond, body, (d, r, jnp.array(0), err))
         return d, err <= tol
 
     r0 = residual(delta_lin)

@@ -166,7 +166,7 @@ def test_constant_stiffness_mc_equals_time_function_mc():
     kw = dict(n_samples=200, key=KEY, dt=0.01, n_steps=100, save_every=10, progress=False)
     a = pg.monte_carlo(pg.System(stiffness=k, **common), **kw)
     b = pg.monte_carlo(pg.System(stiffness=pg.FourierSeries(k), **common), **kw)
-    assert (a.propagation, b.propagation) == ("eigen", "physical")  # the default picks each system's best path
+    assert (a.propagation, b.propagation) == ("eigen", "physical")  # the default picks each system's path
     assert float(jnp.max(b.std_delta)) > 1e-3
     for x, y in [(a.mean_u, b.mean_u), (a.std_u, b.std_u), (a.std_delta, b.std_delta)]:
         np.testing.assert_allclose(x, y, rtol=0, atol=1e-9 * float(jnp.max(jnp.abs(y))))
@@ -221,8 +221,8 @@ def test_eigen_coordinates_refused_where_they_cannot_be_used():
     kw = dict(n_samples=10, key=KEY, dt=0.02, n_steps=4, progress=False)
     varying = time_varying_system()  # constant K and C: accepted
     assert pg.monte_carlo(varying, **kw).propagation == "eigen"
-    varying_k = pg.System(mass=np.eye(2), stiffness=pg.FourierSeries(np.diag([200.0, 100.0])), damping=np.eye(2),
-                          noise_input=np.ones((2, 1)))
+    varying_k = pg.System(mass=np.eye(2), stiffness=pg.FourierSeries(np.diag([200.0, 100.0])),
+                          damping=np.eye(2), noise_input=np.ones((2, 1)))
     assert pg.monte_carlo(varying_k, **kw).propagation == "physical"
     with pytest.raises(ValueError, match="propagation='eigen'.*K or C depends on time"):
         pg.monte_carlo(varying_k, propagation="eigen", **kw)
