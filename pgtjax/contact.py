@@ -159,8 +159,9 @@ class ContactLaw(eqx.Module):
     contact j depend only on contact j's arguments): the SL solver's closed-form Newton Jacobian relies on it.
     A law whose ``stiffness`` is always either 0 or ``k`` sets ``on_off_stiffness = True``: Monte Carlo then
     inverts the contact-space Newton Jacobians of all 2^nc contact patterns once per step instead of once per
-    sample and iteration. A piecewise-affine law may also implement ``affine_piece``: a Newton step that stays
-    inside one affine piece is then exact, which Monte Carlo checks instead of evaluating the residual.
+    sample and iteration. Such a law may also implement ``affine_piece`` (piecewise-affine laws): a Newton step
+    that stays inside one affine piece is then exact, which that batched solve (2 to 8 contacts) checks
+    instead of evaluating the residual.
     """
 
     on_off_stiffness: ClassVar[bool] = False

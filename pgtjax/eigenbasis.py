@@ -1,8 +1,8 @@
 """The Monte Carlo step of a system with constant K and C, in the real eigenbasis of its contact-free map.
 
 With K and C constant, the contact-free part of a Newmark step (:mod:`pgtjax.newmark`) is one fixed linear
-map of the state x = (u, v). In the scaled state ``x~ = (u, (h/2) v)`` (u and (h/2) v are both lengths,
-which keeps the eigenbasis well conditioned) one step reads
+map of the state x = (u, v). In the scaled state ``x~ = (u, (h/2) v)`` (u and (h/2) v in the same units,
+so that neither half of the state dominates the basis's rounding) one step reads
 
     x~1 = T x~0 + [I; I] A^-1 (F0 + F1 + B_N N + B_P P - G0 f0 - G1 f1) + [0; (h/2) v_noise P]
     T = [[X_u, (2/h) X_v], [X_u - I, (2/h) X_v - I]],   X = A^-1 [E, D],   A = K + (2/h) C + (4/h^2) M
@@ -11,13 +11,20 @@ which keeps the eigenbasis well conditioned) one step reads
 is the trapezoidal rule, so T is the Cayley transform ``(I - hS/2)^-1 (I + hS/2)`` of the state matrix S and
 shares its eigenvectors. In the real eigenbasis ``x~ = W z`` the map T is block diagonal: a 1x1 block per
 real eigenvalue and a 2x2 block ``[[a, b], [-b, a]]`` per complex pair ``a +- ib`` (columns Re w, Im w of
-the eigenvector w). A sample's step then costs O(n nc) instead of the dense O(n^2) product: an elementwise
-update plus products with the (2n, nc) images of the contact directions. Physical coordinates are formed
-(one (2n, 2n) product per sample) only at the saved times.
+the eigenvector w). A sample's step then costs O(n (nc + n_draws)) instead of the dense O(n^2) product: an
+elementwise update plus products with the (2n, nc) images of the contact directions and the noise input.
+Physical coordinates are formed (one (2n, 2n) product per sample) only at the saved times.
 
 It is the same discretization, not an approximation: the results agree with the physical-coordinate step to
-rounding amplified by cond(W). The basis is accepted only if the eigen-decomposition reproduces T to 1e-10
-and cond(W) <= ``MAX_CONDITION``; otherwise Monte Carlo keeps the physical coordinates.
+rounding amplified by at most cond(W). cond(W) grows as the step shrinks (about 2 / (omega h) for a lightly
+damped mode of frequency omega; a damped rigid-body mode, eigenvalue near 1, behaves alike), so the basis is
+checked where it is formed: it is accepted only if ``W Lambda W^-1`` reproduces one step of T on random
+states to ``MAX_MAP_ERROR`` (relative) and cond(W) <= ``MAX_CONDITION``; otherwise Monte Carlo keeps the
+physical coordinates (``propagation="auto"``) or says why (``"eigen"``). A defective T (e.g. a critically
+damped mode, or an undamped rigid-body mode) has no eigenbasis; LAPACK returns a nearly singular one
+(cond(W) of order 1e8 or more), which the cap refuses. Measured: over 500-2,000 forced steps the eigen
+recursion stays within 5e-13 (planetary model, h = 2.7 ms, cond 2e4) and 1e-10 (h = 2.7 us, cond 2e7) of the
+physical one, relative.
 
 The decomposition runs once per run on the host (NumPy/LAPACK): ``jnp.linalg.eig`` exists only on the CPU
 backend and Monte Carlo is not differentiated.
@@ -35,8 +42,8 @@ import numpy as np
 from .newmark import Snapshot, noise_matrices, solve_contact_forces
 from .system import System
 
-MAX_CONDITION = 1e6  # cond(W) above this: rounding in the basis change could reach 1e-10 relative
-_MAX_RESIDUAL = 1e-10  # ||T W - W Lambda|| / (||T|| ||W||) accepted from the eigen-decomposition
+MAX_MAP_ERROR = 1e-10  # relative error of W Lambda W^-1 x against T x accepted on random states x
+MAX_CONDITION = 1e8  # cond(W) beyond this is refused whatever the test states show
 
 
 class EigenPropagator(eqx.Module):
@@ -107,11 +114,16 @@ def eigen_propagator(system: System, h: float) -> tuple[EigenPropagator | None, 
     m = pairs.size
     block[np.arange(m) + m, np.arange(m)] = -b  # T Re w = a Re w - b Im w
     block[np.arange(m), np.arange(m) + m] = b  # T Im w = b Re w + a Im w
-    residual = np.linalg.norm(t_map @ basis - basis @ block) / (np.linalg.norm(t_map) * np.linalg.norm(basis))
     condition = float(np.linalg.cond(basis))
-    if not (residual <= _MAX_RESIDUAL and condition <= MAX_CONDITION):
-        return None, f"eigenbasis rejected (cond {condition:.3g}, residual {residual:.3g})"
+    if not condition <= MAX_CONDITION:
+        return None, f"eigenbasis rejected (cond(W) {condition:.3g} > {MAX_CONDITION:.0e})"
     inverse = np.linalg.inv(basis)
+    states = np.random.default_rng(0).standard_normal((2 * n, 8))  # fixed: the decision is reproducible
+    exact = t_map @ states
+    error = np.max(np.linalg.norm(basis @ (block @ (inverse @ states)) - exact, axis=0)
+                   / np.linalg.norm(exact, axis=0))
+    if not error <= MAX_MAP_ERROR:
+        return None, f"eigenbasis rejected (one step off by {error:.3g} relative, cond(W) {condition:.3g})"
     force_input = inverse @ np.concatenate([a_inv, a_inv], axis=0)
     prop = EigenPropagator(
         jnp.asarray(basis), jnp.asarray(inverse), jnp.asarray(force_input), jnp.asarray(a_inv),

@@ -172,8 +172,8 @@ def monte_carlo(
         histogram_times: times (s) at which the histograms are reported (nearest saved time).
         progress: show a progress bar over chunks.
         propagation: coordinates the samples are stepped in. ``"eigen"``: the real eigenbasis of the
-            contact-free Newmark map (:mod:`pgtjax.eigenbasis`; constant K and C only), O(n nc) per sample and
-            step instead of O(n^2), the same scheme to rounding; ``"physical"``: the DOFs themselves;
+            contact-free Newmark map (:mod:`pgtjax.eigenbasis`; constant K and C only), O(n (nc + n_draws))
+            per sample and step instead of O(n^2), the same scheme to rounding; ``"physical"``: the DOFs themselves;
             ``"auto"`` (default): eigen where the basis is accepted, else physical.
     """
     validate_system(system, t0)

@@ -224,7 +224,8 @@ def solve_contacts_batch(delta_lin, coupling, k, b, law, *, tol=1e-12, max_iter=
             cond, body, (delta_lin, r0, jnp.array(0), jnp.max(jnp.abs(r0) / scale, axis=1)))
         return d, err <= tol
     d1 = newton_step(delta_lin, r0)
-    exact = jnp.all(law.affine_piece(d1, k[None, :], b[None, :]) == piece0, axis=1)
+    same_piece = law.affine_piece(d1, k[None, :], b[None, :]) == piece0
+    exact = jnp.all(same_piece & jnp.isfinite(d1), axis=1)  # a NaN compares as "in the gap": not exact
     return jax.lax.cond(jnp.all(exact), lambda d: (d, exact), iterate, d1)
 
 
