@@ -9,11 +9,7 @@ import time
 from pathlib import Path
 
 from . import cli_back_to_back, cli_ring
-from ._cli_types import csv_floats, nonneg_int, positive_float
-
-
-
-
+from ._cli_types import csv_floats, nonneg_int, positive_float, positive_int
 
 
 def _add_gear_pair_options(p: argparse.ArgumentParser, quick: bool) -> None:
@@ -24,7 +20,8 @@ def _add_gear_pair_options(p: argparse.ArgumentParser, quick: bool) -> None:
                    help="Monte Carlo samples per regime (0 skips MC; default %(default)s)")
     p.add_argument("--dt", type=positive_float, default=1e-5, help="time step in s (default %(default)s)")
     p.add_argument("--t-end", type=positive_float, default=0.04, help="simulated time in s (default %(default)s)")
-    p.add_argument("--saves", type=nonneg_int, default=80, help="number of saved times (default %(default)s)")
+    p.add_argument("--saves", type=positive_int, default=80,
+                   help="number of saved times (default %(default)s)")
     p.add_argument("--criteria", default="force,energy",
                    help="comma-separated SL criteria among force, energy, energy_origin (default %(default)s)")
     p.add_argument("--pdf-times", default="0.03",
@@ -105,7 +102,11 @@ def _add_planetary_options(p: argparse.ArgumentParser, quick: bool) -> None:
                    help="Monte Carlo samples (0 skips MC; default %(default)s; the thesis used 100,000)")
     p.add_argument("--periods", type=positive_float, default=1.0, help="carrier periods simulated (default 1)")
     p.add_argument("--dt", type=positive_float, default=0.0027, help="time step in s (thesis: 0.0027)")
-    p.add_argument("--saves", type=nonneg_int, default=200, help="saved times (default %(default)s)")
+    p.add_argument("--saves", type=positive_int, default=200,
+                   help="Monte Carlo saved times (default %(default)s)")
+    p.add_argument("--sl-refine", type=positive_int, default=10,
+                   help="SL is saved this many times as often as MC (default %(default)s: resolves the "
+                        "meshing frequency)")
     p.add_argument("--criteria", default="force", help="comma-separated SL criteria (force, energy, energy_origin)")
     p.add_argument("--ring-model", choices=("elastic", "rigid"), default=None,
                    help="override the parameter file's ring model")
@@ -145,12 +146,12 @@ def _run_planetary(args) -> int:
     step = lambda msg: print(f"[{time.perf_counter() - start:7.1f} s] {msg}", flush=True)  # noqa: E731
     step("SL + moment recursion" + (" and Monte Carlo" if args.samples else ""))
     result = study.run_study(params, n_samples=args.samples, dt=args.dt, periods=args.periods, n_saves=args.saves,
-                             criteria=criteria, key=jax.random.key(args.seed), chunk_size=args.chunk_size,
-                             progress=not args.quiet)
+                             sl_refine=args.sl_refine, criteria=criteria, key=jax.random.key(args.seed),
+                             chunk_size=args.chunk_size, progress=not args.quiet)
     sweeps = None
     if not args.no_sweeps and params.ring_model == "elastic":
         step("rim thickness 87 / 128 / 168 mm (SL)")
-        kw = dict(dt=args.dt, periods=args.periods, n_saves=args.saves)
+        kw = dict(dt=args.dt, periods=args.periods, n_saves=args.saves, sl_refine=args.sl_refine)
         sweeps = {"Rim thickness: thesis Figs. 3.12-3.15": study.parameter_sweep(
             params, study.rim_thickness_variants(params), **kw)}
         counts = tuple(c for c in (3, 6, 9) if params.ring.n_elements % c == 0)

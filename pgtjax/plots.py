@@ -25,33 +25,59 @@ def scaled(unit: str):
     return _SCALE.get(unit, (1.0, unit))
 
 
+def _time_axis(times):
+    """(factor, unit) for a time axis: ms when every time is below 2 s, else s."""
+    t = np.asarray(times)
+    return (1e3, "ms") if t.size and float(np.max(np.abs(t))) < 2.0 else (1.0, "s")
+
+
+def readable_ylim(ax, min_relative_span: float = 1e-2) -> None:
+    """Keep a nearly constant curve flat on the page: no offset notation, and a y-range of at least
+    ``min_relative_span`` of the values' magnitude (otherwise a 1e-6 relative wobble fills the axes)."""
+    ax.ticklabel_format(axis="y", useOffset=False)
+    values = [np.asarray(line.get_ydata(), float) for line in ax.get_lines()]
+    values = np.concatenate([v[np.isfinite(v)] for v in values]) if values else np.zeros(0)
+    if values.size == 0:
+        return
+    lo, hi = float(values.min()), float(values.max())
+    magnitude = max(abs(lo), abs(hi))
+    if magnitude > 0.0 and hi - lo < min_relative_span * magnitude:
+        centre, half = 0.5 * (lo + hi), 0.5 * min_relative_span * magnitude
+        ax.set_ylim(centre - half, centre + half)
+
+
 def mean_std_figure(times, curves: dict, quantities: list[tuple[str, str]], title: str = "",
-                    second: str = "std"):
+                    second: str = "std", styles: dict | None = None, subtitle: str = ""):
     """One column per quantity, rows = mean and standard deviation (or mean square, ``second="mean square"``).
 
-    ``curves[label][quantity] = (mean array, second array)``; ``quantities`` = [(name, unit)].
+    ``curves[label][quantity] = (mean array, second array)``; ``quantities`` = [(name, unit)]; ``times`` (s)
+    is one array for every curve or ``{label: array}`` (e.g. SL saved more densely than MC); ``styles``
+    overrides :data:`LINESTYLES` per label (e.g. markers for a sparser curve); ``subtitle`` is a line of small
+    print under the title.
     """
+    styles = {**LINESTYLES, **(styles or {})}
+    times_of = times if isinstance(times, dict) else {label: times for label in curves}
+    t_scale, t_unit = _time_axis(next(iter(times_of.values())))
     with plt.rc_context(STYLE):
         fig, axes = plt.subplots(2, len(quantities), figsize=(2.6 * len(quantities) + 0.6, 4.4), squeeze=False,
                                  sharex=True)
-        t_span = float(np.asarray(times)[-1] - np.asarray(times)[0]) if len(times) > 1 else 1.0
-        t_scale, t_unit = (1e3, "ms") if t_span < 2.0 else (1.0, "s")
-        t_ms = np.asarray(times) * t_scale
         for j, (name, unit) in enumerate(quantities):
             factor, shown = scaled(unit)
+            f2 = factor**2 if second == "mean square" else factor
             for label, data in curves.items():
                 mean, std = data[name]
-                style = LINESTYLES.get(label, {})
-                axes[0, j].plot(t_ms, np.asarray(mean) * factor, label=label, **style)
-                f2 = factor**2 if second == "mean square" else factor
-                axes[1, j].plot(t_ms, np.asarray(std) * f2, label=label, **style)
+                t = np.asarray(times_of[label]) * t_scale
+                axes[0, j].plot(t, np.asarray(mean) * factor, label=label, **styles.get(label, {}))
+                axes[1, j].plot(t, np.asarray(std) * f2, label=label, **styles.get(label, {}))
             axes[0, j].set_title(name)
             axes[0, j].set_ylabel(f"mean ({shown})")
             axes[1, j].set_ylabel(f"{second} ({shown}²)" if second == "mean square" else f"std ({shown})")
             axes[1, j].set_xlabel(f"time ({t_unit})")
+            for ax in axes[:, j]:
+                readable_ylim(ax)
         axes[0, 0].legend(loc="best")
         if title:
-            fig.suptitle(title)
+            fig.suptitle(title + (f"\n{subtitle}" if subtitle else ""), fontsize=9 if subtitle else None)
         fig.tight_layout()
     return fig
 

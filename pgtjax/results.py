@@ -132,8 +132,12 @@ class MonteCarloResult(_Labelled):
     propagation: str = eqx.field(static=True, default="physical")  # coordinates the samples were stepped in
 
     def standard_error(self, what: str = "u"):
-        """Standard errors (mean, std) of ``mean_<what>`` and ``std_<what>`` (normal approximation)."""
-        sd = getattr(self, f"std_{what}")
+        """Standard errors (mean, std) of ``mean_<what>`` and ``std_<what>`` (``what`` = u, v, delta, obs)
+        or, for ``what = "force"``, of ``force_mean`` and ``force_std`` (normal approximation)."""
+        fields = {"u": "std_u", "v": "std_v", "delta": "std_delta", "obs": "std_obs", "force": "force_std"}
+        if what not in fields:
+            raise ValueError(f"`what` must be one of {', '.join(fields)}, got {what!r}")
+        sd = getattr(self, fields[what])
         n = self.n_samples
         return sd / np.sqrt(n), sd / np.sqrt(2.0 * (n - 1))
 

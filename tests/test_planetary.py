@@ -3,9 +3,11 @@ option against Lin & Parker's published table, elastic -> rigid convergence, MC 
 
 import copy
 import dataclasses
+import json
 import math
 import tomllib
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -321,3 +323,107 @@ def test_derived_stiffness_matches_appendix_3a3_blocks():
     np.testing.assert_allclose(k[sun, sun], k_s1 + bearing, rtol=1e-12, atol=1e-3)
     car = slice(lay.carrier(0), lay.carrier(0) + 3)
     np.testing.assert_allclose(k[car, car], k_c + np.diag([5e9, 5e9, 0.0]), rtol=1e-12, atol=1e-3)
+
+
+def test_study_grids_outputs_and_symmetry_zero_dofs(tmp_path):
+    """The study saves SL ``sl_refine`` times as often as MC: SL on MC's grid must equal an SL run saved
+    there directly; the symmetric train's translations are reported as round-off, not compared; the
+    written results reload with their labels and every figure is written."""
+    from pgtjax.studies import planetary as study
+
+    p = small_params()
+    result = study.run_study(p, n_samples=200, periods=0.02, n_saves=4, sl_refine=3, key=jax.random.key(2),
+                             progress=False)
+    st = result.settings
+    assert st["sl_save_every"] * st["sl_refine"] == st["mc_save_every"] and st["sl_refine"] == 3
+    assert st["n_steps"] == 4 * st["mc_save_every"]
+    sl, mc = result.sl["force"], result.mc
+    assert len(sl.times) == 3 * (len(mc.times) - 1) + 1 and sl.mean_u.dtype == jnp.float64
+    coarse = result.sl_on_mc_grid()
+    np.testing.assert_allclose(np.asarray(coarse.times), np.asarray(mc.times), rtol=0, atol=1e-12)
+    system, kw, mc_every, _ = study._setup(p, result.dt, 0.02, 4, 3)
+    direct = pg.solve_moments(system, save_every=mc_every, **kw)
+    for field in ("mean_u", "std_u", "force_mean", "std_obs"):
+        want = np.asarray(getattr(direct, field))
+        np.testing.assert_allclose(np.asarray(getattr(coarse, field)), want, rtol=1e-9,
+                                   atol=1e-12 * np.abs(want).max())
+
+    quiet = study.roundoff_dofs(sl)
+    assert {"sun_x", "sun_y", "carrier_x", "carrier_y"} <= set(quiet)
+    assert not {"sun_u", "carrier_u", "planet1_eta", "ring_node1_radial"} & set(quiet)
+    summary = study.error_summary(result)
+    skipped = summary["roundoff_dofs_not_compared"]  # at round-off in both SL and MC
+    assert {"sun_x", "sun_y", "carrier_x", "carrier_y"} <= set(skipped) <= set(quiet)
+    assert summary["dofs_compared"] == system.n_dof - 1 - len(skipped) and summary["criterion"] == "force"
+    # the meshes never leave contact here, so SL is exact: the meshing forces agree within sampling error
+    assert set(summary["mesh_force"]["per_mesh_mean"]) == set(sl.contact_names)
+    assert summary["mesh_force"]["fraction_of_mesh_time_points_within_3_se"] == 1.0
+
+    sweeps = {"Rim thickness: test": study.parameter_sweep(p, study.rim_thickness_variants(p, (0.1, 0.15)),
+                                                           periods=0.02, n_saves=4, sl_refine=3)}
+    written = {f.name for f in study.write_outputs(result, tmp_path, sweeps=sweeps)}
+    assert {"planetary_dofs.png", "planetary_more_dofs.png", "planetary_ring_contact.png",
+            "planetary_mesh_forces.png", "planetary_mesh_forces_zoom.png", "planetary_rim_thickness.png",
+            "planetary_sl_force.npz",
+            "planetary_mc.npz", "summary.json"} <= written
+    back, attrs = pg.load_results(tmp_path / "planetary_sl_force.npz")
+    assert back.dof_names == sl.dof_names and back.observable_names == sl.observable_names
+    assert attrs["sl_refine"] == 3 and attrs["dt_s"] == result.dt
+    np.testing.assert_array_equal(np.asarray(back.std_u), np.asarray(sl.std_u))
+    # merged saves keep the worst solver diagnostics of the blocks they merge
+    flagged = eqx.tree_at(lambda r: r.converged, sl, sl.converged.at[2].set(False))
+    merged = study.every_nth_save(flagged, 3)
+    assert not bool(merged.converged[1]) and bool(jnp.all(merged.converged[2:]))
+    for bad, match in [(dict(sl_refine=0), "sl_refine"), (dict(n_saves=0), "n_saves"), (dict(n_saves=2.5), "n_saves"),
+                       (dict(n_samples=1), "n_samples"), (dict(criteria=()), "criteria")]:
+        with pytest.raises(ValueError, match=match):
+            study.run_study(p, **{"n_samples": 0, "periods": 0.02, **bad})
+    with pytest.raises(ValueError, match="was not run"):
+        result.sl_on_mc_grid("energy")
+
+
+@pytest.mark.parametrize("n_saves, sl_refine", [(200, 10), (200, 30), (7, 3), (3000, 10), (200, 1)])
+def test_study_grid_saves_sl_exactly_sl_refine_times_as_often(n_saves, sl_refine):
+    from pgtjax.studies import planetary as study
+
+    p = pm.default_params()
+    target = round(study.carrier_period(p) / 0.0027)
+    n_steps, mc_every, sl_every = study._grid(p, 0.0027, 1.0, n_saves, sl_refine)
+    assert mc_every == sl_refine * sl_every and n_steps % mc_every == 0
+    assert target - mc_every < n_steps <= target  # the whole steps of MC's grid that fit in the period
+    assert n_steps // mc_every >= min(n_saves, target // sl_refine)  # at least the saves asked for, if possible
+
+
+def test_rigid_ring_study_with_another_criterion_writes_its_outputs(tmp_path):
+    """The rigid-ring model has no ring nodes or contact-point observables; the energy criterion alone."""
+    from pgtjax.studies import planetary as study
+
+    p = pm.load_params({**copy.deepcopy(BASE), "ring_model": "rigid"})
+    result = study.run_study(p, n_samples=100, periods=0.01, n_saves=3, sl_refine=2, criteria=("energy",),
+                             key=jax.random.key(1), progress=False)
+    written = {f.name for f in study.write_outputs(result, tmp_path)}
+    assert {"planetary_dofs.png", "planetary_more_dofs.png", "planetary_mesh_forces.png",
+            "planetary_mesh_forces_zoom.png", "planetary_sl_energy.npz", "summary.json"} <= written
+    assert "planetary_ring_contact.png" not in written
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert list(summary["sl_vs_mc"]) == ["energy"] and summary["sl_vs_mc"]["energy"]["criterion"] == "energy"
+    assert "ring_u" in summary["sl_vs_mc"]["energy"]["per_dof_std"]
+
+
+def test_nearly_constant_curve_is_drawn_flat():
+    import matplotlib.pyplot as plt
+
+    from pgtjax import plots
+
+    fig, ax = plt.subplots()
+    ax.plot(np.arange(50), 73.576 + 1e-6 * np.sin(np.arange(50)))
+    plots.readable_ylim(ax)
+    lo, hi = ax.get_ylim()
+    assert hi - lo >= 0.99e-2 * 73.576 and lo < 73.576 < hi
+    assert not ax.yaxis.get_major_formatter().get_useOffset()
+    ax.plot(np.arange(50), np.linspace(0.0, 5.0, 50))  # a real variation keeps matplotlib's own limits
+    ax.relim(), ax.autoscale()
+    before = ax.get_ylim()
+    plots.readable_ylim(ax)
+    assert ax.get_ylim() == before
+    plt.close(fig)

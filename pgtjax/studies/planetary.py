@@ -14,7 +14,9 @@ filter in its stationary distribution (the wind has been blowing before t = 0).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
+import operator
 from pathlib import Path
 
 import equinox as eqx
@@ -39,11 +41,38 @@ FIGURE_DOFS = (("ring_node2_tangential", "m"), ("sun_u", "m"), ("carrier_u", "m"
 @dataclasses.dataclass
 class PlanetaryStudy:
     params: pm.PlanetaryParams
-    sl: dict[str, MomentResult]
+    sl: dict[str, MomentResult]  # by SL criterion
     mc: MonteCarloResult | None
     dt: float
     carrier_period: float
     settings: dict
+
+    def sl_result(self, criterion: str | None = None) -> MomentResult:
+        """The SL result of ``criterion`` (default: the first criterion run)."""
+        criterion = next(iter(self.sl)) if criterion is None else criterion
+        if criterion not in self.sl:
+            raise ValueError(f"`criterion` {criterion!r} was not run; run: {', '.join(self.sl)}")
+        return self.sl[criterion]
+
+    def sl_on_mc_grid(self, criterion: str | None = None) -> MomentResult:
+        """The SL result at the Monte Carlo's saved times (SL is saved ``sl_refine`` times as often)."""
+        return every_nth_save(self.sl_result(criterion), self.settings["sl_refine"])
+
+
+def every_nth_save(result: MomentResult, n: int) -> MomentResult:
+    """``result`` at every ``n``-th saved time (first included). The per-block solver diagnostics
+    (``iterations``, ``residual``, ``converged``) are reduced over the ``n`` blocks merged into each, so that
+    a step that did not converge is not dropped with its block."""
+    if (len(result.times) - 1) % n:
+        raise ValueError(f"{len(result.times) - 1} saved blocks cannot be merged by {n}")
+    out = jax.tree.map(lambda a: a[::n], result)
+
+    def merged(a, reduce):
+        return jnp.concatenate([a[:1], reduce(a[1:].reshape(-1, n, *a.shape[1:]), axis=1)])
+
+    return eqx.tree_at(lambda r: (r.iterations, r.residual, r.converged), out,
+                       (merged(result.iterations, jnp.max), merged(result.residual, jnp.max),
+                        merged(result.converged, jnp.all)))
 
 
 def carrier_period(p: pm.PlanetaryParams) -> float:
@@ -64,39 +93,71 @@ def contact_point_observables(p: pm.PlanetaryParams, planet: int = 0) -> Observa
     return Observables(matrix, names=[f"ring_contact{planet + 1}_radial", f"ring_contact{planet + 1}_tangential"])
 
 
-def _setup(p, dt, periods, n_saves, observables=True):
+def _positive_int(name: str, value) -> int:
+    try:
+        value = operator.index(value)
+    except TypeError:
+        raise ValueError(f"`{name}` must be an integer >= 1, got {value!r}") from None
+    if value < 1:
+        raise ValueError(f"`{name}` must be an integer >= 1, got {value}")
+    return value
+
+
+def _grid(p, dt, periods, n_saves, sl_refine):
+    """(n_steps, MC save interval, SL save interval) over ``periods`` carrier periods: SL is saved exactly
+    ``sl_refine`` times as often as MC (the default 10 resolves the meshing frequency, Figs. 3.10-3.11,
+    while MC pays its per-save cost only at its own saves), and MC about ``n_saves`` times: more when
+    ``n_saves * sl_refine`` exceeds the number of steps, since SL is saved at most once a step."""
+    sl_refine, n_saves = _positive_int("sl_refine", sl_refine), _positive_int("n_saves", n_saves)
+    target = int(round(periods * carrier_period(p) / dt))
+    sl_every = max(target // (n_saves * sl_refine), 1)
+    mc_every = sl_every * sl_refine
+    return mc_every * max(target // mc_every, 1), mc_every, sl_every
+
+
+def _setup(p, dt, periods, n_saves, sl_refine=1, observables=True):
+    """The system and the solver keywords shared by SL and MC, with the SL and MC save intervals."""
     system = pm.planetary(p)
     lay = pm.layout(p)
-    n_steps = int(round(periods * carrier_period(p) / dt))
-    save_every = max(n_steps // n_saves, 1)
-    n_steps = save_every * max(n_steps // save_every, 1)
-    kw = dict(dt=dt, n_steps=n_steps, save_every=save_every, initial_displacement=static_equilibrium(system),
+    n_steps, mc_every, sl_every = _grid(p, dt, periods, n_saves, sl_refine)
+    kw = dict(dt=dt, n_steps=n_steps, initial_displacement=static_equilibrium(system),
               initial_covariance=pm.wind_filter_stationary_covariance(p, lay))
     if observables and p.ring_model == "elastic":
         kw["observables"] = contact_point_observables(p)
-    return system, kw
+    return system, kw, mc_every, sl_every
 
 
-def run_study(params=None, *, n_samples=500, dt=0.0027, periods=1.0, n_saves=200, criteria=("force",),
-              key=None, chunk_size=5000, progress=True) -> PlanetaryStudy:
-    """SL (each criterion) and MC over ``periods`` carrier periods; ``n_samples = 0`` skips MC."""
+def run_study(params=None, *, n_samples=500, dt=0.0027, periods=1.0, n_saves=200, sl_refine=10,
+              criteria=("force",), key=None, chunk_size=5000, progress=True) -> PlanetaryStudy:
+    """SL (each criterion) and MC over ``periods`` carrier periods; ``n_samples = 0`` skips MC.
+
+    MC is saved about ``n_saves`` times and SL ``sl_refine`` times as often (:func:`_grid`;
+    :meth:`PlanetaryStudy.sl_on_mc_grid` gives SL on MC's grid)."""
     p = pm.default_params() if params is None else params
-    system, kw = _setup(p, dt, periods, n_saves)
-    sl = {c: solve_moments(system, criterion=c, **kw) for c in criteria}
+    criteria = tuple(criteria)
+    if not criteria:
+        raise ValueError("`criteria` must name at least one SL criterion (force, energy, energy_origin)")
+    if n_samples != 0 and _positive_int("n_samples", n_samples) < 2:
+        raise ValueError(f"`n_samples` must be 0 (no Monte Carlo) or an integer >= 2, got {n_samples!r}")
+    system, kw, mc_every, sl_every = _setup(p, dt, periods, n_saves, sl_refine)
+    sl = {c: solve_moments(system, criterion=c, save_every=sl_every, **kw) for c in criteria}
     mc = None
     if n_samples:
         mc = monte_carlo(system, n_samples=n_samples, key=jax.random.key(0) if key is None else key,
-                         chunk_size=chunk_size, progress=progress, **kw)
-    return PlanetaryStudy(p, sl, mc, dt, carrier_period(p),
-                          dict(n_samples=n_samples, periods=periods, n_steps=kw["n_steps"], criteria=list(criteria)))
+                         chunk_size=chunk_size, progress=progress, save_every=mc_every, **kw)
+    settings = dict(n_samples=n_samples, periods=periods, n_steps=kw["n_steps"], criteria=list(criteria),
+                    mc_save_every=mc_every, sl_save_every=sl_every, sl_refine=mc_every // sl_every)
+    return PlanetaryStudy(p, sl, mc, dt, carrier_period(p), settings)
 
 
-def parameter_sweep(params, variants: dict, *, dt=0.0027, periods=1.0, n_saves=200) -> dict[str, MomentResult]:
-    """SL + recursion for each ``{label: PlanetaryParams}`` (rim thickness, supports...)."""
+def parameter_sweep(params, variants: dict, *, dt=0.0027, periods=1.0, n_saves=200,
+                    sl_refine=10) -> dict[str, MomentResult]:
+    """SL + recursion for each ``{label: PlanetaryParams}`` (rim thickness, supports...), saved as
+    :func:`run_study` saves SL."""
     out = {}
     for label, p in variants.items():
-        system, kw = _setup(p, dt, periods, n_saves)
-        out[label] = solve_moments(system, **kw)
+        system, kw, _, sl_every = _setup(p, dt, periods, n_saves, sl_refine)
+        out[label] = solve_moments(system, save_every=sl_every, **kw)
     return out
 
 
@@ -182,31 +243,159 @@ def _force_series(result, name):
     return mean, mean**2 + np.asarray(result.force_std[:, j]) ** 2  # mean, mean square
 
 
-def error_summary(study: PlanetaryStudy, criterion="force") -> dict:
-    """Largest |SL - MC| over time of mean and std, in units of the MC standard error, per DOF group."""
+ROUNDOFF_LEVEL = 1e-5  # peak std below this fraction of the largest of the same unit: zero but for round-off
+
+
+def roundoff_dofs(result: MomentResult | MonteCarloResult) -> list[str]:
+    """DOFs that the wind does not excite above round-off: the symmetric train (planets equally spaced,
+    meshing in phase, bolts in a 3-fold pattern; thesis Sec. 3.7) leaves the sun and carrier translations and
+    the planets' radial motions 1e-7 below the other DOFs of the same unit, where the solvers' round-off
+    (~1e-14 m) is a visible part of the std. A design without that symmetry normally has none."""
+    peak = np.max(np.asarray(result.std_u), axis=0)
+    units = np.asarray(result.dof_units)
+    return [n for i, n in enumerate(result.dof_names)
+            if peak[i] < ROUNDOFF_LEVEL * np.max(peak[units == units[i]])]
+
+
+def _z_scores(sl: MomentResult, mc: MonteCarloResult, what: str):
+    """|SL - MC| of the mean and of the std of ``what`` (``"u"`` or ``"force"``) in units of MC's standard
+    errors (:meth:`MonteCarloResult.standard_error`: normal approximation, optimistic for the std of a
+    non-Gaussian quantity such as the force of a mesh that loses contact), after t0."""
+    fields = {"u": ("mean_u", "std_u"), "force": ("force_mean", "force_std")}[what]
+    sl_mean, sl_std, mc_mean, mc_std = (np.asarray(getattr(r, f))[1:] for r in (sl, mc) for f in fields)
+    se_mean, se_std = (np.maximum(np.asarray(a)[1:], 1e-300) for a in mc.standard_error(what))
+    return np.abs(sl_mean - mc_mean) / se_mean, np.abs(sl_std - mc_std) / se_std
+
+
+def error_summary(study: PlanetaryStudy, criterion: str | None = None) -> dict:
+    """Largest |SL - MC| over time of the mean and std of every DOF and of every meshing force, in units of
+    the MC standard error, at the Monte Carlo's saved times (SL ``criterion``, default the first run). DOFs
+    at round-off level in both SL and MC (:func:`roundoff_dofs`) and the wind-filter state are not
+    compared."""
     if study.mc is None:
         return {}
-    sl, mc = study.sl[criterion], study.mc
-    se_m, se_s = mc.standard_error("u")
-    late = np.arange(1, len(mc.times))
-    z_mean = np.abs(np.asarray(sl.mean_u - mc.mean_u))[late] / np.maximum(np.asarray(se_m)[late], 1e-300)
-    z_std = np.abs(np.asarray(sl.std_u - mc.std_u))[late] / np.maximum(np.asarray(se_s)[late], 1e-300)
-    # Only DOFs the wind excites above round-off: the symmetric train leaves the sun translations and the
-    # planets' radial motions (sun and ring mesh forces nearly cancel radially) 1e-7 below the other DOFs of
-    # the same unit, where the Newmark solves' round-off (~1e-14 m) is a visible part of the std.
-    peak = np.max(np.asarray(sl.std_u), axis=0)
-    units = np.asarray(sl.dof_units)
-    mech = [i for i, n in enumerate(sl.dof_names)
-            if n != "wind_filter_chi" and peak[i] > 1e-5 * np.max(peak[units == units[i]])]
-    worst = lambda z: {sl.dof_names[i]: float(np.max(z[:, i])) for i in mech}  # noqa: E731
-    wm, ws = worst(z_mean), worst(z_std)
+    sl, mc = study.sl_on_mc_grid(criterion), study.mc
+    if sl.times.shape != mc.times.shape or not np.allclose(
+            np.asarray(sl.times), np.asarray(mc.times), rtol=0.0, atol=1e-9 * study.carrier_period):
+        raise ValueError("SL and MC saved times differ: the study's grids are inconsistent")
+    quiet = sorted(set(roundoff_dofs(study.sl_result(criterion))) & set(roundoff_dofs(mc)))
+    compared = [i for i, n in enumerate(sl.dof_names) if n not in quiet and n != "wind_filter_chi"]
+    z_mean, z_std = _z_scores(sl, mc, "u")
+    f_mean, f_std = _z_scores(sl, mc, "force")
+
+    def worst(z, names, columns):
+        return {names[i]: float(np.max(z[:, i])) for i in columns}
+
+    def extremes(z_m, z_s, names, columns):
+        wm, ws = worst(z_m, names, columns), worst(z_s, names, columns)
+        return dict(max_mean_error_in_se=max(wm.values(), default=None),
+                    max_std_error_in_se=max(ws.values(), default=None),
+                    fraction_within_3_se=float(np.mean((z_m[:, columns] < 3) & (z_s[:, columns] < 3)))
+                    if columns else None, per_mean=wm, per_std=ws)
+
+    dofs = extremes(z_mean, z_std, sl.dof_names, compared)
+    forces = extremes(f_mean, f_std, sl.contact_names, list(range(len(sl.contact_names))))
     return dict(
-        criterion=criterion, n_samples=mc.n_samples, dofs_compared=len(mech),
-        max_mean_error_in_se=max(wm.values()), max_std_error_in_se=max(ws.values()),
-        fraction_of_dof_time_points_within_3_se=float(np.mean((z_mean[:, mech] < 3) & (z_std[:, mech] < 3))),
+        criterion=sl.criterion, n_samples=mc.n_samples, dofs_compared=len(compared),
+        roundoff_dofs_not_compared=quiet,
+        max_mean_error_in_se=dofs["max_mean_error_in_se"], max_std_error_in_se=dofs["max_std_error_in_se"],
+        fraction_of_dof_time_points_within_3_se=dofs["fraction_within_3_se"],
+        mesh_force=dict(max_mean_error_in_se=forces["max_mean_error_in_se"],
+                        max_std_error_in_se=forces["max_std_error_in_se"],
+                        fraction_of_mesh_time_points_within_3_se=forces["fraction_within_3_se"],
+                        per_mesh_mean=forces["per_mean"], per_mesh_std=forces["per_std"]),
         contact_loss_probability_max=float(np.max(mc.contact_loss_probability)),
-        per_dof_mean=wm, per_dof_std=ws,
+        per_dof_mean=dofs["per_mean"], per_dof_std=dofs["per_std"],
     )
+
+
+# ---------------------------------------------------------------------------------------------- figures
+
+# Thesis App. A DOFs beyond FIGURE_DOFS, in the order shown when they carry more than round-off.
+APPENDIX_DOFS = (("ring_node0_radial", "m"), ("ring_node1_radial", "m"), ("ring_node2_radial", "m"),
+                 ("ring_node2_rotation", "rad"), ("planet1_u", "m"), ("sun_x", "m"), ("carrier_x", "m"),
+                 ("planet1_xi", "m"), ("ring_x", "m"), ("ring_u", "m"))
+MC_MARKERS = dict(color="k", ls="none", marker="o", ms=2.0)  # MC is saved more sparsely than SL
+
+
+def _present(quantities, result) -> list[tuple[str, str]]:
+    """The (name, unit) pairs that are DOFs of this model (the rigid-ring model has no ring nodes)."""
+    return [q for q in quantities if q[0] in result.dof_names]
+
+
+def _sl_mc_curves(study: PlanetaryStudy, series, names, with_mc=True) -> tuple[dict, dict]:
+    """(times, curves) of every SL criterion (dense) and of MC (its own saved times), for plots."""
+    times, curves = {}, {}
+    for c, r in study.sl.items():
+        times[f"SL {c}"], curves[f"SL {c}"] = np.asarray(r.times), {n: series(r, n) for n in names}
+    if with_mc and study.mc is not None:
+        times["MC"], curves["MC"] = np.asarray(study.mc.times), {n: series(study.mc, n) for n in names}
+    return times, curves
+
+
+def dof_figure(study: PlanetaryStudy, quantities=FIGURE_DOFS, title="Planetary gear train: SL vs MC "
+               "(thesis Figs. 3.5-3.8)", subtitle=""):
+    """Mean and std of DOFs: SL as lines, MC as markers at its saved times (None if no DOF is present)."""
+    quantities = _present(quantities, study.sl_result())
+    if not quantities:
+        return None
+    times, curves = _sl_mc_curves(study, _dof_series, [n for n, _ in quantities])
+    return plots.mean_std_figure(times, curves, quantities, title=title, styles={"MC": MC_MARKERS},
+                                 subtitle=subtitle)
+
+
+def appendix_figure(study: PlanetaryStudy, max_panels: int = 6):
+    """Further DOFs of thesis App. A; the DOFs at round-off level are named in the subtitle instead."""
+    quiet = roundoff_dofs(study.sl_result())
+    shown = [q for q in _present(APPENDIX_DOFS, study.sl_result()) if q[0] not in quiet][:max_panels]
+    subtitle = ("at round-off level, zero by symmetry: " + ", ".join(quiet)) if quiet else ""
+    return dof_figure(study, shown, title="Further DOFs (thesis App. A)", subtitle=subtitle)
+
+
+def contact_point_figure(study: PlanetaryStudy):
+    """The ring at the moving contact point of planet 1 (Fig. 3.9); None without the observables."""
+    names = list(study.sl_result().observable_names)
+    if not names:
+        return None
+    times, curves = _sl_mc_curves(study, _obs_series, names)
+    return plots.mean_std_figure(times, curves, [(n, "m") for n in names], styles={"MC": MC_MARKERS},
+                                 title="Ring at the moving contact point of planet 1 (thesis Fig. 3.9)")
+
+
+def mesh_force_figure(study: PlanetaryStudy, meshes=("sun_planet1", "ring_planet1")):
+    """Mean and mean square of the equivalent meshing forces by SL over the whole run (Figs. 3.10-3.11).
+    MC is left out: saved a few times per mesh period at most, it would alias the meshing frequency into a
+    slow beat (:func:`mesh_force_zoom_figure` compares them)."""
+    times, curves = _sl_mc_curves(study, _force_series, list(meshes), with_mc=False)
+    dense = {label: {**plots.LINESTYLES.get(label, {}), "ls": "-", "lw": 0.5} for label in curves}
+    return plots.mean_std_figure(times, curves, [(n, "N") for n in meshes], second="mean square",
+                                 styles=dense, title="Equivalent meshing forces, SL (thesis Figs. 3.10-3.11)")
+
+
+def mesh_force_zoom_figure(study: PlanetaryStudy, meshes=("sun_planet1", "ring_planet1"), mesh_periods=5.0):
+    """The meshing forces over ``mesh_periods`` mesh periods (fewer if the run is shorter) at mid-run:
+    SL against MC's saved times."""
+    times, curves = _sl_mc_curves(study, _force_series, list(meshes))
+    t_all = np.asarray(study.sl_result().times)
+    mesh_period = 2.0 * np.pi / float(study.params.mesh.mesh_frequency)
+    width = min(mesh_periods * mesh_period, float(t_all[-1] - t_all[0]))
+    t0 = max(0.5 * (t_all[0] + t_all[-1]) - 0.5 * width, float(t_all[0]))
+    for label in curves:
+        keep = (times[label] >= t0) & (times[label] <= t0 + width)
+        times[label] = times[label][keep]
+        curves[label] = {n: tuple(np.asarray(a)[keep] for a in ms) for n, ms in curves[label].items()}
+    return plots.mean_std_figure(times, curves, [(n, "N") for n in meshes], second="mean square",
+                                 styles={"MC": MC_MARKERS},
+                                 title=f"Meshing forces over {width / mesh_period:.3g} mesh periods: "
+                                       "SL vs MC")
+
+
+def sweep_figure(results: dict[str, MomentResult], title: str, quantities=FIGURE_DOFS):
+    """SL of each variant of a parameter sweep (rim thickness, supports)."""
+    quantities = _present(quantities, next(iter(results.values())))
+    times = {label: np.asarray(r.times) for label, r in results.items()}
+    curves = {label: {n: _dof_series(r, n) for n, _ in quantities} for label, r in results.items()}
+    return plots.mean_std_figure(times, curves, quantities, title=title)
 
 
 def write_outputs(study: PlanetaryStudy, outdir, *, sweeps: dict | None = None, modal: list | None = None,
@@ -220,46 +409,26 @@ def write_outputs(study: PlanetaryStudy, outdir, *, sweeps: dict | None = None, 
         written.append(save_results(outdir / f"planetary_sl_{crit}.npz", res, **attrs))
     if study.mc is not None:
         written.append(save_results(outdir / "planetary_mc.npz", study.mc, **attrs))
-    times = np.asarray(next(iter(study.sl.values())).times) / study.carrier_period
-
-    def curves(fn, names):
-        out = {}
-        if study.mc is not None:
-            out["MC"] = {n: fn(study.mc, n) for n in names}
-        out.update({f"SL {c}": {n: fn(r, n) for n in names} for c, r in study.sl.items()})
-        return out
-
-    dof_names = [n for n, _ in FIGURE_DOFS]
-    fig = plots.mean_std_figure(times * study.carrier_period, curves(_dof_series, dof_names), list(FIGURE_DOFS),
-                                title="Planetary gear train: SL vs MC (thesis Figs. 3.5-3.8)")
-    written.append(plots.save(fig, outdir / "planetary_dofs.png"))
-    lumped = [("sun_x", "m"), ("sun_y", "m"), ("planet1_xi", "m"), ("planet1_u", "m"), ("carrier_x", "m"),
-              ("ring_node0_radial", "m")]
-    fig = plots.mean_std_figure(times * study.carrier_period, curves(_dof_series, [n for n, _ in lumped]), lumped,
-                                title="Further DOFs (thesis App. A)")
-    written.append(plots.save(fig, outdir / "planetary_more_dofs.png"))
-    first = next(iter(study.sl.values()))
-    if first.observable_names:
-        obs = [(n, "m") for n in first.observable_names]
-        fig = plots.mean_std_figure(times * study.carrier_period, curves(_obs_series, first.observable_names), obs,
-                                    title="Ring at the moving contact point of planet 1 (thesis Fig. 3.9)")
-        written.append(plots.save(fig, outdir / "planetary_ring_contact.png"))
-    meshes = [("sun_planet1", "N"), ("ring_planet1", "N")]
-    fig = plots.mean_std_figure(times * study.carrier_period, curves(_force_series, [n for n, _ in meshes]), meshes,
-                                title="Equivalent meshing forces (thesis Figs. 3.10-3.11)", second="mean square")
-    written.append(plots.save(fig, outdir / "planetary_mesh_forces.png"))
     summary = dict(dt_s=study.dt, carrier_period_s=study.carrier_period, settings=study.settings,
-                   sl_vs_mc=error_summary(study) if study.mc is not None else None)
-    if sweeps:
-        for title, results in sweeps.items():
-            t = np.asarray(next(iter(results.values())).times)
-            fig = plots.mean_std_figure(t, {label: {n: _dof_series(r, n) for n in dof_names}
-                                            for label, r in results.items()}, list(FIGURE_DOFS), title=title)
-            slug = title.split(":")[0].lower().replace(" ", "_")
-            written.append(plots.save(fig, outdir / f"planetary_{slug}.png"))
-            summary[slug] = {label: {n: dict(max_std=float(np.max(_dof_series(r, n)[1])),
-                                             mean_at_end=float(_dof_series(r, n)[0][-1])) for n in dof_names}
-                             for label, r in results.items()}
+                   sl_vs_mc={c: error_summary(study, c) for c in study.sl} if study.mc is not None else None,
+                   roundoff_dofs=roundoff_dofs(study.sl_result()))
+    figures = [("planetary_dofs", lambda: dof_figure(study)),
+               ("planetary_more_dofs", lambda: appendix_figure(study)),
+               ("planetary_ring_contact", lambda: contact_point_figure(study)),
+               ("planetary_mesh_forces", lambda: mesh_force_figure(study))]
+    if study.mc is not None:
+        figures.append(("planetary_mesh_forces_zoom", lambda: mesh_force_zoom_figure(study)))
+    for title, results in (sweeps or {}).items():
+        slug = title.split(":")[0].lower().replace(" ", "_")
+        figures.append((f"planetary_{slug}", functools.partial(sweep_figure, results, title)))
+        names = [n for n, _ in _present(FIGURE_DOFS, next(iter(results.values())))]
+        summary[slug] = {label: {n: dict(max_std=float(np.max(_dof_series(r, n)[1])),
+                                         mean_at_end=float(_dof_series(r, n)[0][-1])) for n in names}
+                         for label, r in results.items()}
+    for name, build in figures:  # each figure is saved (and closed) as soon as it is drawn
+        fig = build()
+        if fig is not None:
+            written.append(plots.save(fig, outdir / f"{name}.png"))
     if modal is not None:
         summary["modes"] = modal
     if sens is not None:
