@@ -1,6 +1,6 @@
 """End-to-end benchmark of the issue's Monte Carlo target: the ch. 3 planetary study at the thesis's size
-(SL + recursion and 100,000 Monte Carlo samples over one carrier period at dt = 2.7 ms, 200 saved times,
-the contact-point observables), i.e. the SL and MC part of ``pgtjax run --full``, timed once from a cold
+(SL + recursion and 100,000 Monte Carlo samples over one carrier period at dt = 2.7 ms, MC saved 200 times
+and SL 2,000 times, the contact-point observables), i.e. the SL and MC part of ``pgtjax run --full``, timed once from a cold
 start (compilation included) with the process's peak resident memory. The SL-vs-MC agreement of the run is
 recorded with it.
 
@@ -41,6 +41,7 @@ def main():
     path = write("planetary_full", dict(
         command=f"python benchmarks/bench_planetary_full.py --samples {args.samples} --chunk-size {args.chunk_size}",
         samples=args.samples, chunk_size=args.chunk_size, steps=result.settings['n_steps'], dt_s=result.dt,
+        settings=result.settings,
         wall_s_including_compilation=wall, peak_rss_gb=rss_gb, propagation=result.mc.propagation,
         ratio_vs_thesis_223_cpu_hours=THESIS_MC_S / wall, sl_vs_mc=e,
     ))

@@ -195,13 +195,27 @@ def modal_table(params=None) -> list[dict]:
             for i, f in enumerate(modes.frequencies_hz)]
 
 
-def sensitivities(params=None, *, dt=0.0027, n_steps=200, node=2, relative_step=1e-3) -> dict:
-    """d std(ring node ``node`` radial displacement at the end) / d(rim thickness, bolt radial stiffness),
-    by reverse-mode autodiff through SL + recursion, with central differences for comparison."""
+def sensitivities(params=None, *, dt=0.0027, n_steps=200, node=2, mesh="ring_planet1",
+                  relative_step=1e-2) -> dict:
+    """Derivatives of the std, at the end of ``n_steps`` steps, of ring node ``node``'s radial displacement
+    and of the meshing force of ``mesh`` with respect to the rim thickness and the bolts' radial stiffness:
+    reverse-mode autodiff through SL + recursion (one pass per quantity), with Richardson-extrapolated
+    central differences for comparison, and the elasticities ``(x / q) dq/dx`` (dimensionless: the relative
+    change of q per relative change of x).
+
+    The reference is ``(4 D(h) - D(2h)) / 3`` with ``D(h)`` the central difference at ``h = relative_step x``
+    (truncation O(h^4)). Its accuracy is bounded by the SL values' round-off, ~1e-11 relative (jit and eager
+    evaluations differ by that much), divided by h: for the default model's mesh force, plain central
+    differences at 0.05-0.2 % scatter by 1e-5 around autodiff, while the extrapolation from 1 % and 2 % agrees
+    with it to 2e-7 (jit) and 2.4e-6 (eager), with no trend left from truncation."""
     p = pm.default_params() if params is None else params
     lay = pm.layout(p)
     index = lay.ring_start + 3 * node
-    u_eq = static_equilibrium(pm.planetary(p))
+    system = pm.planetary(p)
+    contact = system.contact_names().index(mesh) if mesh in system.contact_names() else None
+    if contact is None:
+        raise ValueError(f"`mesh` must be one of {', '.join(system.contact_names())}, got {mesh!r}")
+    u_eq = static_equilibrium(system)
 
     def response(x):
         thickness, support = x
@@ -210,18 +224,24 @@ def sensitivities(params=None, *, dt=0.0027, n_steps=200, node=2, relative_step=
         q = eqx.tree_at(lambda z: z.ring, p, ring)
         r = solve_moments(pm.planetary(q), dt=dt, n_steps=n_steps, save_every=n_steps, rtol=1e-13,
                           initial_displacement=u_eq, initial_covariance=pm.wind_filter_stationary_covariance(q, lay))
-        return r.std_u[-1, index]
+        return jnp.stack([r.std_u[-1, index], r.force_std[-1, contact]])
 
     x = jnp.stack([p.ring.thickness, jnp.asarray(p.ring.k_support_radial).reshape(-1)[0]])
-    grad = jax.grad(response)(x)
-    fd = []
-    for i in range(2):
-        h = float(x[i]) * relative_step
+    value = response(x)
+    jac = jax.jacrev(response)(x)  # (quantity, parameter)
+    def central(i, h):
         e = jnp.zeros(2).at[i].set(h)
-        fd.append(float((response(x + e) - response(x - e)) / (2 * h)))
-    return dict(quantity=f"std of ring_node{node}_radial at t = {n_steps * dt:.3f} s (m)",
-                value=float(response(x)), parameters=["rim thickness (m)", "bolt radial stiffness (N/m)"],
-                gradient=[float(g) for g in grad], central_difference=fd)
+        return (response(x + e) - response(x - e)) / (2 * h)
+
+    steps = [float(x[i]) * relative_step for i in range(2)]
+    fd = jnp.stack([(4.0 * central(i, h) - central(i, 2.0 * h)) / 3.0 for i, h in enumerate(steps)], axis=1)
+    t_end = f"{n_steps * dt:.3f} s"
+    return dict(quantities=[f"std of ring_node{node}_radial at t = {t_end} (m)",
+                            f"std of the {mesh} meshing force at t = {t_end} (N)"],
+                value=[float(v) for v in value],
+                parameters=["rim thickness (m)", "bolt radial stiffness (N/m)"],
+                gradient=np.asarray(jac).tolist(), central_difference=np.asarray(fd).tolist(),
+                elasticity=np.asarray(jac * x[None, :] / value[:, None]).tolist())
 
 
 # ---------------------------------------------------------------------------------------------- output
