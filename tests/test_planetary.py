@@ -375,7 +375,8 @@ def test_study_grids_outputs_and_symmetry_zero_dofs(tmp_path):
     merged = study.every_nth_save(flagged, 3)
     assert not bool(merged.converged[1]) and bool(jnp.all(merged.converged[2:]))
     for bad, match in [(dict(sl_refine=0), "sl_refine"), (dict(n_saves=0), "n_saves"), (dict(n_saves=2.5), "n_saves"),
-                       (dict(n_samples=1), "n_samples"), (dict(criteria=()), "criteria")]:
+                       (dict(n_samples=1), "n_samples"), (dict(n_samples=-3), "0 \\(no Monte Carlo\\) or"),
+                       (dict(n_samples=10.0), "n_samples"), (dict(criteria=()), "criteria")]:
         with pytest.raises(ValueError, match=match):
             study.run_study(p, **{"n_samples": 0, "periods": 0.02, **bad})
     with pytest.raises(ValueError, match="was not run"):

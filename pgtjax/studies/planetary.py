@@ -137,7 +137,11 @@ def run_study(params=None, *, n_samples=500, dt=0.0027, periods=1.0, n_saves=200
     criteria = tuple(criteria)
     if not criteria:
         raise ValueError("`criteria` must name at least one SL criterion (force, energy, energy_origin)")
-    if n_samples != 0 and _positive_int("n_samples", n_samples) < 2:
+    try:
+        count = -1 if isinstance(n_samples, bool) else operator.index(n_samples)
+    except TypeError:
+        count = -1
+    if count < 0 or count == 1:
         raise ValueError(f"`n_samples` must be 0 (no Monte Carlo) or an integer >= 2, got {n_samples!r}")
     system, kw, mc_every, sl_every = _setup(p, dt, periods, n_saves, sl_refine)
     sl = {c: solve_moments(system, criterion=c, save_every=sl_every, **kw) for c in criteria}
