@@ -27,7 +27,7 @@ def simulate(
     """Integrate the noise-free system from a given state; returns a labelled :class:`Trajectory` saved at
     ``t0 + k * save_every * dt``. The noise input ``B`` is ignored."""
     validate_system(system, t0)
-    validate_time_grid(dt, n_steps, save_every)
+    n_steps, save_every = validate_time_grid(dt, n_steps, save_every)
     u0, v0 = initial_state(system, initial_displacement, initial_velocity)
     return _simulate_jit(
         system, jnp.asarray(t0, jnp.float64), jnp.asarray(dt, jnp.float64), u0, v0,

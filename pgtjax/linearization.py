@@ -546,7 +546,7 @@ def solve_moments(
             are reported (``mean_obs``, ``std_obs``).
     """
     validate_system(system, t0)
-    validate_time_grid(dt, n_steps, save_every)
+    n_steps, save_every = validate_time_grid(dt, n_steps, save_every)
     check_criterion(criterion)
     check_noise_scheme(noise_scheme)
     if isinstance(rtol, bool) or not isinstance(rtol, numbers.Real) or not 0.0 < rtol < 1.0:

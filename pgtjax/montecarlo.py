@@ -30,7 +30,7 @@ from .newmark import (
     snapshot,
 )
 from .results import MonteCarloResult
-from .system import Observables, System, initial_state, validate_system, validate_time_grid
+from .system import Observables, System, check_count, initial_state, validate_system, validate_time_grid
 
 try:  # progress bars are a convenience, not a requirement
     from tqdm.auto import tqdm
@@ -177,12 +177,10 @@ def monte_carlo(
             ``"auto"`` (default): eigen where the basis is accepted, else physical.
     """
     validate_system(system, t0)
-    validate_time_grid(dt, n_steps, save_every)
+    n_steps, save_every = validate_time_grid(dt, n_steps, save_every)
     check_noise_scheme(noise_scheme)
-    if not isinstance(n_samples, int | np.integer) or n_samples < 2:
-        raise ValueError(f"`n_samples` must be an integer >= 2, got {n_samples!r}")
-    if not isinstance(chunk_size, int | np.integer) or chunk_size < 1:
-        raise ValueError(f"`chunk_size` must be an integer >= 1, got {chunk_size!r}")
+    check_count("n_samples", n_samples, minimum=2)
+    check_count("chunk_size", chunk_size)
     if propagation not in PROPAGATIONS:
         raise ValueError(f"`propagation` must be one of {PROPAGATIONS}, got {propagation!r}")
     eigen = None

@@ -273,17 +273,25 @@ def validate_system(system: System, t0: float = 0.0) -> None:
             raise ValueError(f"contact `names` must have {nc} entries, got {len(c.names)}")
 
 
-def validate_time_grid(dt, n_steps, save_every: int = 1) -> None:
-    """``dt`` > 0 s and finite, ``n_steps`` >= 1, ``save_every`` >= 1 (integers) dividing ``n_steps``."""
+def check_count(name: str, value, minimum: int = 1) -> int:
+    """``value`` as an int if it is an integer (Python or NumPy; not a bool) >= ``minimum``, else a
+    ``ValueError`` naming ``name`` and the accepted range."""
+    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < minimum:
+        raise ValueError(f"`{name}` must be an integer >= {minimum}, got {value!r}")
+    return int(value)
+
+
+def validate_time_grid(dt, n_steps, save_every: int = 1) -> tuple[int, int]:
+    """``dt`` > 0 s and finite, ``n_steps`` >= 1, ``save_every`` >= 1 (integers) dividing ``n_steps``.
+    Returns ``(n_steps, save_every)`` as Python ints: the solvers' jitted cores take them as static sizes
+    (a NumPy integer would be traced as an array)."""
     if not isinstance(dt, jax.core.Tracer):
         if not np.isfinite(float(dt)) or float(dt) <= 0.0:
             raise ValueError(f"`dt` must be a finite time step > 0 s, got {dt!r}")
-    if not isinstance(n_steps, int | np.integer) or n_steps < 1:
-        raise ValueError(f"`n_steps` must be an integer >= 1, got {n_steps!r}")
-    if not isinstance(save_every, int | np.integer) or save_every < 1:
-        raise ValueError(f"`save_every` must be an integer >= 1, got {save_every!r}")
+    n_steps, save_every = check_count("n_steps", n_steps), check_count("save_every", save_every)
     if n_steps % save_every:
         raise ValueError(f"`n_steps` ({n_steps}) must be a multiple of `save_every` ({save_every})")
+    return n_steps, save_every
 
 
 def initial_state(system: System, initial_displacement=None, initial_velocity=None):

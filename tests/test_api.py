@@ -126,3 +126,21 @@ def test_jit_of_value_and_grad_with_concrete_initial_state():
     value, grad = jax.jit(jax.value_and_grad(loss))(5.0e4)
     np.testing.assert_allclose(value, loss(5.0e4), rtol=1e-12)
     assert np.isfinite(float(grad))
+
+
+def test_numpy_integer_sizes_accepted_and_bools_refused():
+    """Sizes may be NumPy integers (as from np.arange or a config array); each solver runs with them and
+    gives what the same Python ints give. A bool is not a size."""
+    system = pg.System(mass=[[1.0]], stiffness=[[4.0]], damping=[[0.2]], noise_input=[[1.0]], load=[0.5])
+    kw = dict(dt=0.01, initial_displacement=[0.1])
+    want = pg.solve_moments(system, n_steps=6, save_every=3, **kw)
+    got = pg.solve_moments(system, n_steps=np.int64(6), save_every=np.int32(3), **kw)
+    np.testing.assert_array_equal(got.std_u, want.std_u)
+    np.testing.assert_array_equal(pg.simulate(system, n_steps=np.int64(6), **kw).u,
+                                  pg.simulate(system, n_steps=6, **kw).u)
+    mc = pg.monte_carlo(system, n_samples=np.int64(40), chunk_size=np.int64(16), n_steps=np.int64(6),
+                        key=jax.random.key(0), progress=False, **kw)
+    np.testing.assert_array_equal(mc.std_u, pg.monte_carlo(system, n_samples=40, chunk_size=16, n_steps=6,
+                                                           key=jax.random.key(0), progress=False, **kw).std_u)
+    with pytest.raises(ValueError, match="`n_steps` must be an integer >= 1, got True"):
+        pg.solve_moments(system, n_steps=True, **kw)

@@ -16,7 +16,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import json
-import operator
 from pathlib import Path
 
 import equinox as eqx
@@ -32,7 +31,7 @@ from ..models import planetary as pm
 from ..models.ring import ring_interpolation, ring_nodal_inverse
 from ..montecarlo import monte_carlo
 from ..results import MomentResult, MonteCarloResult, save_results
-from ..system import Observables
+from ..system import Observables, check_count
 
 # Thesis node 3 (1-based) is our 0-based ring node 2.
 FIGURE_DOFS = (("ring_node2_tangential", "m"), ("sun_u", "m"), ("carrier_u", "m"), ("planet1_eta", "m"))
@@ -93,22 +92,12 @@ def contact_point_observables(p: pm.PlanetaryParams, planet: int = 0) -> Observa
     return Observables(matrix, names=[f"ring_contact{planet + 1}_radial", f"ring_contact{planet + 1}_tangential"])
 
 
-def _positive_int(name: str, value) -> int:
-    try:
-        value = operator.index(value)
-    except TypeError:
-        raise ValueError(f"`{name}` must be an integer >= 1, got {value!r}") from None
-    if value < 1:
-        raise ValueError(f"`{name}` must be an integer >= 1, got {value}")
-    return value
-
-
 def _grid(p, dt, periods, n_saves, sl_refine):
     """(n_steps, MC save interval, SL save interval) over ``periods`` carrier periods: SL is saved exactly
     ``sl_refine`` times as often as MC (the default 10 resolves the meshing frequency, Figs. 3.10-3.11,
     while MC pays its per-save cost only at its own saves), and MC about ``n_saves`` times: more when
     ``n_saves * sl_refine`` exceeds the number of steps, since SL is saved at most once a step."""
-    sl_refine, n_saves = _positive_int("sl_refine", sl_refine), _positive_int("n_saves", n_saves)
+    sl_refine, n_saves = check_count("sl_refine", sl_refine), check_count("n_saves", n_saves)
     target = int(round(periods * carrier_period(p) / dt))
     sl_every = max(target // (n_saves * sl_refine), 1)
     mc_every = sl_every * sl_refine
@@ -137,12 +126,12 @@ def run_study(params=None, *, n_samples=500, dt=0.0027, periods=1.0, n_saves=200
     criteria = tuple(criteria)
     if not criteria:
         raise ValueError("`criteria` must name at least one SL criterion (force, energy, energy_origin)")
-    try:
-        count = -1 if isinstance(n_samples, bool) else operator.index(n_samples)
-    except TypeError:
-        count = -1
-    if count < 0 or count == 1:
-        raise ValueError(f"`n_samples` must be 0 (no Monte Carlo) or an integer >= 2, got {n_samples!r}")
+    if n_samples != 0:  # Monte Carlo needs two samples for a standard deviation
+        try:
+            check_count("n_samples", n_samples, minimum=2)
+        except ValueError:
+            raise ValueError(f"`n_samples` must be 0 (no Monte Carlo) or an integer >= 2, "
+                             f"got {n_samples!r}") from None
     system, kw, mc_every, sl_every = _setup(p, dt, periods, n_saves, sl_refine)
     sl = {c: solve_moments(system, criterion=c, save_every=sl_every, **kw) for c in criteria}
     mc = None
