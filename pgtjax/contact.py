@@ -48,6 +48,7 @@ from typing import ClassVar, NamedTuple
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax.scipy.special import erfc
 
 from ._numerics import safe_sqrt
@@ -151,52 +152,147 @@ def _flank_statistics_jvp(criterion, primals, tangents):
     return stats, tuple(d_stats)
 
 
-class ContactLaw(eqx.Module):
-    """Extension point: a scalar contact law ``f(delta; k, b)``.
+_GAUSS_HERMITE_POINTS = 24
 
-    Subclasses implement ``force``, ``stiffness`` (df/ddelta) and ``potential`` (P with P' = f, P(0) = 0),
-    and ``linearize`` for a Gaussian deflection. Every method acts contact by contact (the coefficients of
-    contact j depend only on contact j's arguments): the SL solver's closed-form Newton Jacobian relies on it.
-    A law whose ``stiffness`` is always either 0 or ``k`` sets ``on_off_stiffness = True``: Monte Carlo then
-    inverts the contact-space Newton Jacobians of all 2^nc contact patterns once per step instead of once per
-    sample and iteration. Such a law may also implement ``affine_piece`` (piecewise-affine laws): a Newton step
-    that stays inside one affine piece is then exact, which that batched solve (2 to 8 contacts) checks
-    instead of evaluating the residual.
+
+def check_law_inputs(law: ContactLaw, inputs, n_contacts: int):
+    """``inputs`` with every leaf broadcast to ``(n_contacts,)``; ``ValueError`` naming the law if a leaf cannot be."""
+    def broadcast(x):
+        x = jnp.asarray(x, dtype=jnp.float64)
+        if jnp.ndim(x) > 1 or (jnp.ndim(x) == 1 and x.shape[0] not in (1, n_contacts)):
+            raise ValueError(
+                f"contact-law inputs of {type(law).__name__} must be scalars or have shape ({n_contacts},) "
+                f"(one entry per contact), got shape {jnp.shape(x)}"
+            )
+        return jnp.broadcast_to(x, (n_contacts,))
+
+    return jax.tree.map(broadcast, inputs)
+
+
+class ContactLaw(eqx.Module):
+    """Extension point: a scalar contact law ``f(delta; inputs, b)`` (N) of the deflection ``delta`` (m).
+
+    ``inputs`` are the law's *inputs at time t*, any pytree whose leaves have one entry per contact (shape
+    ``(nc,)``): the mesh stiffness (N/m) for :class:`Backlash`, the mesh phase for a Hertzian mesh law. They come
+    from :attr:`pgtjax.Contacts.inputs` (an array, a pytree or a function of time). ``b`` (m) is the
+    half-clearance. The law's own array fields are parameters: they are differentiable (``jax.grad`` through
+    every solver), and must not depend on time.
+
+    A subclass implements ``force``, ``stiffness`` (df/ddelta) and ``potential`` (P with P' = f, P(0) = 0).
+    Everything else has a generic default: the Gaussian expectations that statistical linearization needs
+    (``linearize``, ``force_moments``) by Gauss-Hermite quadrature (:attr:`quadrature_points` nodes), the
+    single-contact implicit solve by Newton, and :meth:`closed_stiffness` (modal analysis, the start of the
+    static solve) as the tangent stiffness at the edge of the clearance. Override them where closed forms
+    exist (see :class:`Backlash`). Arguments may carry leading batch axes (``(..., nc)``: samples, quadrature
+    nodes), so a parameter field with one entry per contact broadcasts on the last axis. Every method acts
+    contact by contact (the coefficients of contact j depend
+    only on contact j's arguments): the SL solver's closed-form Newton Jacobian relies on it.
+
+    A law whose ``stiffness`` is always either 0 or the stiffness input sets ``on_off_stiffness = True``: Monte
+    Carlo then inverts the contact-space Newton Jacobians of all 2^nc contact patterns once per step instead of
+    once per sample and iteration. Such a law may also implement ``affine_piece`` (piecewise-affine laws): a
+    Newton step that stays inside one affine piece is then exact, which that batched solve checks instead of
+    evaluating the residual.
     """
 
     on_off_stiffness: ClassVar[bool] = False
+    quadrature_points: ClassVar[int] = _GAUSS_HERMITE_POINTS
+    single_solve_iterations: ClassVar[int] = 40
 
-    def affine_piece(self, delta, k, b):
+    @abc.abstractmethod
+    def force(self, delta, inputs, b): ...
+
+    @abc.abstractmethod
+    def stiffness(self, delta, inputs, b): ...
+
+    @abc.abstractmethod
+    def potential(self, delta, inputs, b): ...
+
+    def check_inputs(self, inputs, n_contacts: int):
+        """Validated inputs, every leaf broadcast to ``(n_contacts,)`` (overridden to add range checks)."""
+        return check_law_inputs(self, inputs, n_contacts)
+
+    def closed_stiffness(self, inputs, b):
+        """Stiffness (N/m) of each contact taken as a closed linear spring: what :func:`pgtjax.modal_analysis`
+        uses for the contacts, and the static solve's starting point. Default: the tangent stiffness just past
+        the clearance, ``f'(b+)`` (taken a relative 1e-9 past it, so that a law with a kink at ``b`` gives the
+        closed flank's stiffness)."""
+        b = jnp.asarray(b, jnp.float64)
+        return self.stiffness(b * (1.0 + 1e-9) + 1e-30, inputs, b)
+
+    def affine_piece(self, delta, inputs, b):
         """Integer label of the interval of ``delta`` on which the law is affine, elementwise; ``None`` if the
         law is not piecewise affine (the default)."""
         return None
 
-    @abc.abstractmethod
-    def force(self, delta, k, b): ...
+    def gaussian_expectation(self, fun, mu, sigma, inputs, b):
+        """``E[fun(delta, inputs, b)]`` for ``delta ~ N(mu, sigma^2)`` elementwise, by Gauss-Hermite quadrature
+        (exact for polynomials of degree < 2 x :attr:`quadrature_points`)."""
+        z, w = np.polynomial.hermite.hermgauss(self.quadrature_points)
+        mu, sigma = jnp.asarray(mu, jnp.float64), jnp.asarray(sigma, jnp.float64)
+        z = jnp.reshape(jnp.asarray(z), (-1,) + (1,) * jnp.ndim(mu))
+        w = jnp.reshape(jnp.asarray(w / np.sqrt(np.pi)), (-1,) + (1,) * jnp.ndim(mu))
+        d = mu[None] + np.sqrt(2.0) * sigma[None] * z
+        per_node = jax.tree.map(lambda x: jnp.broadcast_to(x, jnp.shape(mu))[None], inputs)
+        bb = jnp.broadcast_to(b, jnp.shape(mu))[None]
+        return jnp.sum(w * fun(d, per_node, bb), axis=0)
 
-    @abc.abstractmethod
-    def stiffness(self, delta, k, b): ...
+    def linearize(self, mu, sigma, inputs, b, criterion: str = "force") -> Linearization:
+        """Equivalent linear contact for ``delta ~ N(mu, sigma^2)`` (module docstring): ``f_0 = E[f]`` and
+        ``k_e = E[f']`` (force criterion) or ``2/3 (E[f'] + (E[P] - P(mu)) / sigma^2)`` (energy), by quadrature;
+        ``sigma = 0`` gives ``k_e = f'(mu)``. The energy form's ``E[P] - P(mu)`` is a difference: it keeps
+        about ``eps (mu / sigma)^2`` relative accuracy, ample for SL's sigma but not for sigma -> 0."""
+        check_criterion(criterion)
+        f_0 = self.gaussian_expectation(self.force, mu, sigma, inputs, b)
+        k_force = self.gaussian_expectation(self.stiffness, mu, sigma, inputs, b)
+        if criterion == "force":
+            return Linearization(k_force, f_0)
+        pot = self.potential
+        excess = self.gaussian_expectation(pot, mu, sigma, inputs, b)
+        if criterion == "energy":
+            excess = excess - pot(jnp.asarray(mu, jnp.float64), inputs, b)
+        safe = jnp.where(sigma > 0.0, sigma, 1.0)
+        k_e = jnp.where(sigma > 0.0, 2.0 / 3.0 * (k_force + excess / safe**2), k_force)
+        return Linearization(k_e, f_0)
 
-    @abc.abstractmethod
-    def potential(self, delta, k, b): ...
+    def force_moments(self, mu, sigma, inputs, b) -> tuple[jnp.ndarray, jnp.ndarray]:
+        """Mean and standard deviation of f(delta) for delta ~ N(mu, sigma^2) (default: quadrature)."""
+        m1 = self.gaussian_expectation(self.force, mu, sigma, inputs, b)
+        m2 = self.gaussian_expectation(lambda d, i, bb: self.force(d, i, bb) ** 2, mu, sigma, inputs, b)
+        return m1, jnp.sqrt(jnp.maximum(m2 - m1**2, 0.0))
 
-    @abc.abstractmethod
-    def linearize(self, mu, sigma, k, b, criterion: str = "force") -> Linearization: ...
-
-    @abc.abstractmethod
-    def force_moments(self, mu, sigma, k, b) -> tuple[jnp.ndarray, jnp.ndarray]:
-        """Mean and standard deviation of f(delta) for delta ~ N(mu, sigma^2)."""
-
-    @abc.abstractmethod
-    def solve_single(self, delta_lin, coupling, k, b):
+    def solve_single(self, delta_lin, coupling, inputs, b):
         """Solve ``delta + s f(delta) = delta_lin`` elementwise for one contact (``s >= 0``): the implicit
-        contact equation of a Newmark step in contact space. Returns ``(delta, converged)``."""
+        contact equation of a Newmark step in contact space. Returns ``(delta, converged)``. Default: Newton
+        from ``delta_lin`` (:attr:`single_solve_iterations` steps; the left side is increasing for a law with
+        ``f' >= 0``)."""
+
+        def body(_, d):
+            return d - (d + coupling * self.force(d, inputs, b) - delta_lin) / (
+                1.0 + coupling * self.stiffness(d, inputs, b)
+            )
+
+        d = jax.lax.fori_loop(0, self.single_solve_iterations, body, delta_lin)
+        res = jnp.abs(d + coupling * self.force(d, inputs, b) - delta_lin)
+        return d, res <= 1e-10 * (jnp.abs(delta_lin) + b + 1e-300)
 
 
 class Backlash(ContactLaw):
     """Piecewise-linear backlash (dead-zone) law, thesis Eq. 3.32 / Eq. 4.9; ``b = 0`` is a linear spring."""
 
     on_off_stiffness: ClassVar[bool] = True
+
+    def check_inputs(self, inputs, n_contacts: int):
+        """The mesh stiffness ``k`` (N/m), scalar or (n_contacts,), must be >= 0 where it can be checked."""
+        k = check_law_inputs(self, inputs, n_contacts)
+        if not isinstance(k, jax.Array):
+            raise ValueError(f"Backlash takes the mesh stiffness (one array) as its input, got {type(inputs).__name__}")
+        if not isinstance(k, jax.core.Tracer) and bool(jnp.any(k < 0.0)):
+            raise ValueError(f"`contact stiffness` must be >= 0 N/m, got {np.asarray(k)}")
+        return k
+
+    def closed_stiffness(self, k, b):
+        return k
 
     def force(self, delta, k, b):
         return k * (jnp.maximum(delta - b, 0.0) - jnp.maximum(-b - delta, 0.0))

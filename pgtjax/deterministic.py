@@ -5,13 +5,15 @@ solve in contact space because the contacts are the only nonlinearity)."""
 
 from __future__ import annotations
 
+import numbers
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 
 from .newmark import initial_sample_state, sample_step, snapshot
 from .results import Trajectory
-from .system import System, initial_state, validate_system, validate_time_grid
+from .system import System, check_count, initial_state, validate_system, validate_time_grid
 
 
 def simulate(
@@ -64,48 +66,118 @@ def _simulate_jit(system, t0, dt, u0, v0, *, n_steps, save_every):
     )
 
 
-def static_equilibrium(system: System, t: float = 0.0, *, tol: float = 1e-12, max_iter: int = 100):
-    """Solve ``K u + G f(G^T u) = F`` at time ``t`` by Newton's method (the deterministic static state;
-    velocities zero). Starts from the solution with every contact closed at its stiffness. Raises
-    ``RuntimeError`` if Newton does not converge (e.g. a mechanism held only by open contacts). The start
-    closes each contact on the flank the load pushes it to (``f = k (delta - b sign delta)``)."""
+def static_equilibrium(
+    system: System,
+    t: float = 0.0,
+    *,
+    velocity=None,
+    initial_guess=None,
+    tol: float = 1e-12,
+    max_iter: int = 100,
+) -> jax.Array:
+    """Displacement (n,) of the static state at time ``t`` (s): ``K u + G f(G^T u) = F - C v``, with ``v``
+    the prescribed ``velocity`` (default 0; a rigid rotation at constant speed, say, whose damping load then
+    enters). Newton's method with the law's tangent stiffness, from ``initial_guess`` or by default from the
+    solution with every contact closed (the law's ``closed_stiffness``) on the flank the load pushes it to.
+
+    Works under ``jit``, ``vmap`` and ``grad``: the derivative is the implicit-function one,
+    ``du = -J^-1 dR`` at the solution (J the tangent stiffness), with respect to every array of the system,
+    the contact law's parameters included. Raises ``RuntimeError`` (also under ``jit``) if Newton does not
+    reach a relative residual ``tol`` in ``max_iter`` iterations, e.g. for a mechanism held only by open
+    contacts."""
     validate_system(system, t)
-    u, converged, iterations = _static_jit(system, jnp.asarray(t, jnp.float64), tol, max_iter)
-    if not bool(converged):
-        raise RuntimeError(f"static equilibrium: Newton did not converge in {int(iterations)} iterations")
-    return u
+    if isinstance(tol, bool) or not isinstance(tol, numbers.Real) or not 0.0 < tol < 1.0:
+        raise ValueError(f"`tol` must be a number in (0, 1), got {tol!r}")
+    max_iter = check_count("max_iter", max_iter)
+    n = system.n_dof
+    v = jnp.zeros(n) if velocity is None else jnp.asarray(velocity, jnp.float64)
+    if v.shape != (n,):
+        raise ValueError(f"`velocity` must have shape ({n},), got {v.shape}")
+    if initial_guess is not None:
+        initial_guess = jnp.asarray(initial_guess, jnp.float64)
+        if initial_guess.shape != (n,):
+            raise ValueError(f"`initial_guess` must have shape ({n},), got {initial_guess.shape}")
+    return _static_solve(system, jnp.asarray(t, jnp.float64), v, initial_guess, tol=float(tol), max_iter=max_iter)
+
+
+def _static_residual(u, system: System, t, v):
+    """``K u + G f(G^T u) - F + C v`` at time ``t`` (N)."""
+    snap = snapshot(system, t)
+    r = snap.stiffness @ u - snap.load + snap.damping @ v
+    if system.n_contacts:
+        g = snap.direction
+        r = r + g @ system.contacts.law.force(g.T @ u, snap.contact_inputs, system.contacts.clearance)
+    return r
+
+
+def _static_tangent(u, system: System, t):
+    """The tangent stiffness ``K + G diag(f'(G^T u)) G^T`` (N/m)."""
+    snap = snapshot(system, t)
+    if not system.n_contacts:
+        return snap.stiffness
+    g = snap.direction
+    k_t = system.contacts.law.stiffness(g.T @ u, snap.contact_inputs, system.contacts.clearance)
+    return snap.stiffness + (g * k_t[None, :]) @ g.T
+
+
+@eqx.filter_custom_jvp
+def _static_implicit(u_star, system, t, v):
+    """Identity on the converged static solution; its tangent is ``-J^-1 dR`` (implicit function theorem)."""
+    return u_star
+
+
+@_static_implicit.def_jvp
+def _static_implicit_jvp(primals, tangents):
+    u_star, system, t, v = primals
+    _, d_system, d_t, d_v = tangents
+    dynamic, static = eqx.partition((system, t, v), eqx.is_inexact_array)
+    d_dynamic = jax.tree.map(lambda d, p: p if p is None else (jnp.zeros_like(p) if d is None else d),
+                             (d_system, d_t, d_v), dynamic, is_leaf=lambda x: x is None)
+
+    def residual(dyn):
+        return _static_residual(u_star, *eqx.combine(dyn, static))
+
+    _, d_residual = jax.jvp(residual, (dynamic,), (d_dynamic,))
+    return u_star, -jnp.linalg.solve(_static_tangent(u_star, system, t), d_residual)
 
 
 @eqx.filter_jit
-def _static_jit(system, t, tol, max_iter):
-    from .newmark import snapshot as _snapshot
+def _static_solve(system, t, v, u_init, *, tol, max_iter):
+    frozen = jax.tree.map(lambda x: jax.lax.stop_gradient(x) if eqx.is_array(x) else x, (system, t, v))
+    sys_c, t_c, v_c = frozen
+    snap = snapshot(sys_c, t_c)
+    f_eff = snap.load - snap.damping @ v_c
+    scale = jnp.max(jnp.abs(f_eff)) + 1e-300
+    if u_init is None:
+        k = snap.stiffness
+        if sys_c.n_contacts:
+            g = snap.direction
+            kc, b = sys_c.contact_stiffness(t_c), sys_c.contacts.clearance
+            closed = k + (g * kc[None, :]) @ g.T
+            u_init = jnp.linalg.solve(closed, f_eff)
+            # close every contact on the flank it is pushed to, offset by the clearance: k (delta - b sign)
+            u_init = jnp.linalg.solve(closed, f_eff + g @ (kc * b * jnp.sign(g.T @ u_init)))
+        else:
+            u_init = jnp.linalg.solve(k, f_eff)
+    u_init = jax.lax.stop_gradient(u_init)
 
-    snap = _snapshot(system, t)
-    k, f, g = snap.stiffness, snap.load, snap.direction
-    kc, b = snap.contact_stiffness, system.contact_clearance()
-    law = system.contacts.law if system.n_contacts else None
-
-    def residual(u):
-        r = k @ u - f
-        return r + g @ law.force(g.T @ u, kc, b) if law is not None else r
-
-    def jacobian(u):
-        return k + (g * law.stiffness(g.T @ u, kc, b)[None, :]) @ g.T if law is not None else k
-
-    closed = k + (g * kc[None, :]) @ g.T
-    u0 = jnp.linalg.solve(closed, f)
-    # close every contact on the flank it is pushed to, offset by the clearance: k (delta - b sign)
-    u0 = jnp.linalg.solve(closed, f + g @ (kc * b * jnp.sign(g.T @ u0)))
-    scale = jnp.max(jnp.abs(f)) + 1e-300
+    def error(u):
+        return jnp.max(jnp.abs(_static_residual(u, sys_c, t_c, v_c))) / scale
 
     def body(state):
         u, it, _ = state
-        u = u - jnp.linalg.solve(jacobian(u), residual(u))
-        return u, it + 1, jnp.max(jnp.abs(residual(u))) / scale
+        u = u - jnp.linalg.solve(_static_tangent(u, sys_c, t_c), _static_residual(u, sys_c, t_c, v_c))
+        return u, it + 1, error(u)
 
     def cond(state):
         _, it, err = state
-        return (it < max_iter) & (err > tol)
+        return (it < max_iter) & ~(err <= tol)  # a NaN residual stops too, and is reported below
 
-    u, it, err = jax.lax.while_loop(cond, body, (u0, jnp.array(0), jnp.max(jnp.abs(residual(u0))) / scale))
-    return u, err <= tol, it
+    u, iterations, err = jax.lax.while_loop(cond, body, (u_init, jnp.array(0), error(u_init)))
+    u = eqx.error_if(
+        u, ~(err <= tol),
+        f"static equilibrium: Newton did not reach a relative residual of {tol:g} in {max_iter} iterations "
+        "(NaN, a mechanism held only by open contacts, or a load no contact can carry); check the loads and "
+        "stiffnesses, or raise `max_iter`",
+    )
+    return _static_implicit(u, system, t, v)

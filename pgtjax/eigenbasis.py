@@ -186,5 +186,5 @@ def eigen_sample_step(system: System, prop: EigenPropagator, state: EigenSampleS
     y1 = prop.advance(state.y) + jnp.concatenate(columns, axis=1) @ jnp.concatenate(rows, axis=0)
     g1 = s1.direction
     delta_lin = y1 @ (prop.basis[: system.n_dof].T @ g1)
-    force, ok = solve_contact_forces(system, delta_lin, g1.T @ prop.a_inv @ g1, s1.contact_stiffness)
+    force, ok = solve_contact_forces(system, delta_lin, g1.T @ prop.a_inv @ g1, s1.contact_inputs)
     return EigenSampleState(y1, force), ok

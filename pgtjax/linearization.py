@@ -27,7 +27,6 @@ than recomputed.
 
 from __future__ import annotations
 
-import functools
 import numbers
 from typing import NamedTuple
 
@@ -65,8 +64,8 @@ class _StepData(NamedTuple):
     coupling: jax.Array  # (nc, nc)
     mean: jax.Array  # (nc,)
     covariance: jax.Array  # (nc, nc)
-    contact_stiffness: jax.Array
-    clearance: jax.Array
+    inputs: object  # the contact law's inputs at the step's end, every leaf (nc,)
+    clearance: jax.Array  # (nc,)
 
 
 class _EndTerms(NamedTuple):
@@ -79,7 +78,7 @@ class _EndTerms(NamedTuple):
 
 def _linearizer(law, criterion: str, data: _StepData):
     """``(mu, sigma) -> Linearization`` of the step-end contacts."""
-    return lambda mu, sigma: law.linearize(mu, sigma, data.contact_stiffness, data.clearance, criterion)
+    return lambda mu, sigma: law.linearize(mu, sigma, data.inputs, data.clearance, criterion)
 
 
 @jax.custom_jvp
@@ -120,15 +119,23 @@ def _implied_moments(nc: int, z, terms: _EndTerms, data: _StepData) -> _Moments:
 
 def _law_derivatives(law, criterion: str, z, data: _StepData, wrt):
     """The law's derivatives (one :class:`Linearization` each) along unit tangents of the arguments named
-    in ``wrt`` (of ``mu, sigma, k, b``): contacts are linearized independently, so these are per contact."""
-    nc = data.contact_stiffness.shape[0]
-    args = (z[:nc], z[nc:], data.contact_stiffness, data.clearance)
-    names = ("mu", "sigma", "k", "b")
-    linearize = lambda *a: law.linearize(*a, criterion)  # noqa: E731
+    in ``wrt`` (of ``mu``, ``sigma``, ``inputs``, ``b``; ``inputs`` gives one per leaf of the law's inputs):
+    contacts are linearized independently, so these are per contact."""
+    nc = data.clearance.shape[0]
+    leaves, treedef = jax.tree.flatten(data.inputs)
+    args = (z[:nc], z[nc:], *leaves, data.clearance)
+    names = ("mu", "sigma", *(("inputs", j) for j in range(len(leaves))), "b")
+
+    def linearize(mu, sigma, *rest):
+        return law.linearize(mu, sigma, jax.tree.unflatten(treedef, rest[:-1]), rest[-1], criterion)
+
+    def along(name):
+        tangent = tuple(jnp.ones_like(a) if n == name else jnp.zeros_like(a) for n, a in zip(names, args))
+        return jax.jvp(linearize, args, tangent)[1]
+
     out = []
     for name in wrt:
-        tangent = tuple(jnp.ones_like(a) if n == name else jnp.zeros_like(a) for n, a in zip(names, args))
-        out.append(jax.jvp(linearize, args, tangent)[1])
+        out.append([along(("inputs", j)) for j in range(len(leaves))] if name == "inputs" else along(name))
     return out
 
 
@@ -179,17 +186,24 @@ class _FixedPointInfo(NamedTuple):
     converged: jax.Array
 
 
-@functools.partial(jax.custom_jvp, nondiff_argnums=(0, 1, 2))
-def _implicit_solution(law, nc, criterion, z_star, terms, data):
+@eqx.filter_custom_jvp
+def _implicit_solution(z_star, terms, data, law, nc, criterion):
     """Identity on the converged fixed point ``z*`` and its :class:`_EndTerms` (both computed by the
     iterations, which are not differentiated). The derivative is the implicit-function-theorem one,
-    ``dz = -J^-1 (dR/ddata) ddata`` with ``J = dR/dz`` at ``z*``, and the end terms' derivative follows from
-    ``dz`` and ``ddata`` (computed only when differentiating)."""
+    ``dz = -J^-1 (dR/dtheta) dtheta`` with ``J = dR/dz`` at ``z*`` and theta the step data and the contact
+    law's own parameters; the end terms' derivative follows from ``dz`` and ``dtheta`` (computed only when
+    differentiating)."""
     return z_star, terms
 
 
-@_implicit_solution.defjvp
-def _implicit_solution_jvp(law, nc, criterion, primals, tangents):
+def _materialize(tangent, primal):
+    """A tangent pytree with its symbolic zeros (``None``) as zero arrays."""
+    return jax.tree.map(lambda t, p: jnp.zeros_like(p) if t is None else t, tangent, primal,
+                        is_leaf=lambda x: x is None)
+
+
+@_implicit_solution.def_jvp
+def _implicit_solution_jvp(primals, tangents):
     """Closed-form tangents. At fixed ``z``, a data tangent ``(dS, dm, dY, dk, db)`` moves the law's
     coefficients by ``dk_e = k_e,k dk + k_e,b db`` (likewise ``df_0``) and ``S K_e`` by
     ``dA = dS K_e + S dK_e``; with ``dR^-1 = -R^-1 dA R^-1`` and ``mean = R^-1 c``:
@@ -202,21 +216,26 @@ def _implicit_solution_jvp(law, nc, criterion, primals, tangents):
     ``dK_e = (data part) + k_e,mu dmu + k_e,sigma dsigma`` and ``dR^-1 = -R^-1 (dS K_e + S dK_e) R^-1``.
     The primal quantities used here are named for the reverse pass's checkpoint policy: they are kept, not
     recomputed, so the rematerialized step repeats none of this contact-space algebra."""
-    z_star, terms, data = primals
-    *_, d_data = tangents
+    z_star, terms, data, law, nc, criterion = primals
+    d_data, d_law = _materialize(tangents[2], data), tangents[3]
     lin, r_inv = terms
     mu = z_star[:nc]
     s_mat = data.coupling
     moments = _implied_moments(nc, z_star, terms, data)
-    d_mu, d_sigma, d_k, d_b = _law_derivatives(law, criterion, z_star, data, ("mu", "sigma", "k", "b"))
+    d_mu, d_sigma, d_k, d_b = _law_derivatives(law, criterion, z_star, data, ("mu", "sigma", "inputs", "b"))
     jac_inv = jnp.linalg.inv(_jacobian(nc, z_star, terms, moments, data, d_mu, d_sigma))
     r_inv_y = r_inv @ (data.covariance + data.covariance.T)  # Y + Y^T: exact even for a rounded, asymmetric Y
     inv_std = jnp.where(moments.std > 0.0, 0.5 / jnp.where(moments.std > 0.0, moments.std, 1.0), 0.0)
     kept = (moments.mean, inv_std, d_mu, d_sigma, d_k, d_b, jac_inv, r_inv_y)
     mean, inv_std, d_mu, d_sigma, d_k, d_b, jac_inv, r_inv_y = checkpoint_name(kept, _FIXED_POINT_NAME)
 
-    d_s, d_k_data, d_b_data = d_data.coupling, d_data.contact_stiffness, d_data.clearance
-    d_lin = jax.tree.map(lambda a, b: a * d_k_data + b * d_b_data, d_k, d_b)  # data part at fixed z
+    d_s, d_b_data = d_data.coupling, d_data.clearance
+    # data part at fixed z: the law's inputs (leaf by leaf), the clearance and the law's own parameters
+    d_lin = jax.tree.map(lambda b: b * d_b_data, d_b)
+    for d_leaf, d_input in zip(d_k, jax.tree.leaves(d_data.inputs)):
+        d_lin = jax.tree.map(lambda acc, a: acc + a * d_input, d_lin, d_leaf)
+    if any(t is not None for t in jax.tree.leaves(d_law, is_leaf=lambda x: x is None)):
+        d_lin = jax.tree.map(jnp.add, d_lin, _law_parameter_tangent(law, criterion, z_star, data, d_law))
     d_a = d_s * lin.k_e[None, :] + s_mat * d_lin.k_e[None, :]
     f_tilde = lin.f_0 - lin.k_e * mu
     d_mean = r_inv @ (d_data.mean - d_s @ f_tilde - s_mat @ (d_lin.f_0 - d_lin.k_e * mu) - d_a @ mean)
@@ -229,15 +248,35 @@ def _implicit_solution_jvp(law, nc, criterion, primals, tangents):
     return (z_star, terms), (d_z, _EndTerms(d_lin, d_r_inv))
 
 
+def _stop_gradient(tree):
+    """``lax.stop_gradient`` on the array leaves of a pytree (a contact law may hold non-array fields)."""
+    return jax.tree.map(lambda x: jax.lax.stop_gradient(x) if eqx.is_array(x) else x, tree)
+
+
+def _law_parameter_tangent(law, criterion: str, z, data: _StepData, d_law) -> Linearization:
+    """Tangent of the law's ``(k_e, f_0)`` at fixed ``z`` and step data along a tangent ``d_law`` of the law's
+    own parameters (its array fields, e.g. a mesh-stiffness table)."""
+    nc = data.clearance.shape[0]
+    d_law = _materialize(d_law, law)
+
+    def linearize(law_params):
+        return law_params.linearize(z[:nc], z[nc:], data.inputs, data.clearance, criterion)
+
+    dynamic, static = eqx.partition(law, eqx.is_inexact_array)
+    d_dynamic = eqx.filter(d_law, eqx.is_inexact_array)
+    return jax.jvp(lambda dyn: linearize(eqx.combine(dyn, static)), (dynamic,), (d_dynamic,))[1]
+
+
 def _solve_fixed_point(system, z0, data, criterion, rtol, max_iter):
     """Newton iterations on R(z) = T(z) - z. Returns the converged ``z``, its :class:`_EndTerms` and the
     convergence information."""
     nc = system.n_contacts
     law = system.contacts.law
+    law_const = _stop_gradient(law)  # the iterations are not differentiated: see _implicit_solution
     data_const = jax.lax.stop_gradient(data)
 
     def evaluate(z, with_jacobian=False):
-        return _evaluate(law, nc, criterion, z, data_const, with_jacobian)
+        return _evaluate(law_const, nc, criterion, z, data_const, with_jacobian)
 
     def scaled_norm(r, z):
         scale = jnp.abs(z[:nc]) + z[nc:] + data_const.clearance + 1e-300
@@ -271,7 +310,7 @@ def _solve_fixed_point(system, z0, data, criterion, rtol, max_iter):
     z_star, _, terms, iters, err = jax.lax.while_loop(cond, body, state)
     # named so that the reverse pass's rematerialization keeps them instead of re-running the iterations
     z_star, terms = checkpoint_name((z_star, terms), _FIXED_POINT_NAME)
-    z, terms = _implicit_solution(law, nc, criterion, z_star, terms, data)
+    z, terms = _implicit_solution(z_star, terms, data, law, nc, criterion)
     return z, terms, _FixedPointInfo(iters, err, err <= rtol)
 
 
@@ -287,7 +326,7 @@ def _linearize_contacts(system, snap: Snapshot, z, criterion) -> Linearization:
     nc = system.n_contacts
     if nc == 0:
         return Linearization(jnp.zeros((0,)), jnp.zeros((0,)))
-    return system.contacts.law.linearize(z[:nc], z[nc:], snap.contact_stiffness, system.contacts.clearance,
+    return system.contacts.law.linearize(z[:nc], z[nc:], snap.contact_inputs, system.contacts.clearance,
                                          criterion)
 
 
@@ -336,7 +375,7 @@ def _record(system, carry: _Carry, info: _FixedPointInfo, t, observables) -> _Sa
         obs_mean = obs_std = jnp.zeros((0,))
     if nc:
         mu, sigma = carry.z[:nc], carry.z[nc:]
-        k, b = carry.snap.contact_stiffness, system.contacts.clearance
+        k, b = carry.snap.contact_inputs, system.contacts.clearance
         f_mean, f_std = system.contacts.law.force_moments(mu, sigma, k, b)
     else:
         f_mean = f_std = None
@@ -382,7 +421,7 @@ def _moment_step(system: System, carry: _Carry, t1, h, criterion, noise_scheme, 
         w0 = jax.scipy.linalg.lu_solve(lu, g1, trans=1).T  # G^T A^-1, (nc, n)
         v0 = solve_a(g1)  # A^-1 G, (n, nc)
         coupling = w0 @ g1
-        data = _StepData(coupling, w0 @ mean_rhs, w0 @ (y_mat + noise_cov) @ w0.T, s1.contact_stiffness,
+        data = _StepData(coupling, w0 @ mean_rhs, w0 @ (y_mat + noise_cov) @ w0.T, s1.contact_inputs,
                          system.contacts.clearance)
         z1, terms, info = _solve_fixed_point(system, carry.z, data, criterion, rtol, max_iter)
         lin1 = terms.lin
@@ -477,7 +516,7 @@ def _moment_step_constant(system: System, carry: _Carry, t1, h, criterion, noise
         gn, coupling = proj[:, : -1 - nc], proj[:, -nc:]
         # the contacts' covariance needs G1^T X_a P only (nc rows), not X_a P itself
         cov_c = (gx @ cov) @ gx.T + gn @ gn.T
-        data = _StepData(coupling, proj[:, -1 - nc], cov_c, s1.contact_stiffness, clearance)
+        data = _StepData(coupling, proj[:, -1 - nc], cov_c, s1.contact_inputs, clearance)
         z1, terms, info = _solve_fixed_point(system, carry.z, data, criterion, rtol, max_iter)
         lin1 = terms.lin
         ke1, f1 = lin1.k_e, lin1.f_0 - lin1.k_e * z1[:nc]

@@ -57,7 +57,7 @@ class Snapshot(NamedTuple):
     stiffness: jax.Array  # (n, n)
     load: jax.Array  # (n,)
     direction: jax.Array  # (n, nc)
-    contact_stiffness: jax.Array  # (nc,)
+    contact_inputs: object  # the contact law's inputs, every leaf (nc,)
     noise_input: jax.Array  # B diag(sqrt(2 pi S0)), (n, n_noise)
 
 
@@ -67,7 +67,7 @@ def snapshot(system: System, t) -> Snapshot:
         at_time(system.stiffness, t),
         at_time(system.load, t),
         system.contact_direction(t),
-        system.contact_stiffness(t),
+        system.contact_inputs(t),
         system.scaled_noise_input(t),
     )
 
@@ -141,6 +141,11 @@ class SampleState(NamedTuple):
     force: jax.Array
 
 
+def _batched(inputs):
+    """Law inputs (every leaf (nc,)) as a batch of one, every leaf (1, nc)."""
+    return jax.tree.map(lambda x: x[None, :], inputs)
+
+
 def solve_contacts(delta_lin, coupling, k, b, law, *, tol=1e-12, max_iter=50):
     """Newton solve of ``delta + S f(delta) = delta_lin`` in contact space (one sample).
 
@@ -190,14 +195,16 @@ def solve_contacts_batch(delta_lin, coupling, k, b, law, *, tol=1e-12, max_iter=
     bits = 2 ** jnp.arange(nc)
     patterns = ((jnp.arange(2**nc)[:, None] & bits[None, :]) > 0).astype(delta_lin.dtype)  # (2^nc, nc)
     eye = jnp.eye(nc, dtype=delta_lin.dtype)
-    inverses = jnp.linalg.inv(eye[None] + coupling[None] * (patterns * k[None, :])[:, None, :])
+    k_on = law.closed_stiffness(k, b)  # an on/off law's stiffness is 0 or this
+    inverses = jnp.linalg.inv(eye[None] + coupling[None] * (patterns * k_on[None, :])[:, None, :])
     scale = jnp.abs(delta_lin) + b[None, :] + 1e-300
+    k_rows = _batched(k)
 
     def residual(d):
-        return d + law.force(d, k[None, :], b[None, :]) @ coupling.T - delta_lin
+        return d + law.force(d, k_rows, b[None, :]) @ coupling.T - delta_lin
 
     def newton_step(d, r):
-        index = jnp.sum(jnp.where(law.stiffness(d, k[None, :], b[None, :]) > 0.0, bits[None, :], 0), axis=1)
+        index = jnp.sum(jnp.where(law.stiffness(d, k_rows, b[None, :]) > 0.0, bits[None, :], 0), axis=1)
         table = inverses[index]  # (batch, nc, nc); column sums beat a batched matrix-vector product on CPU
         return d - sum(table[:, :, j] * r[:, j : j + 1] for j in range(nc))
 
@@ -218,13 +225,13 @@ def solve_contacts_batch(delta_lin, coupling, k, b, law, *, tol=1e-12, max_iter=
         return d, err <= tol
 
     r0 = residual(delta_lin)
-    piece0 = law.affine_piece(delta_lin, k[None, :], b[None, :])
+    piece0 = law.affine_piece(delta_lin, k_rows, b[None, :])
     if piece0 is None:
         d, _, _, err = jax.lax.while_loop(
             cond, body, (delta_lin, r0, jnp.array(0), jnp.max(jnp.abs(r0) / scale, axis=1)))
         return d, err <= tol
     d1 = newton_step(delta_lin, r0)
-    same_piece = law.affine_piece(d1, k[None, :], b[None, :]) == piece0
+    same_piece = law.affine_piece(d1, k_rows, b[None, :]) == piece0
     exact = jnp.all(same_piece & jnp.isfinite(d1), axis=1)  # a NaN compares as "in the gap": not exact
     return jax.lax.cond(jnp.all(exact), lambda d: (d, exact), iterate, d1)
 
@@ -232,14 +239,14 @@ def solve_contacts_batch(delta_lin, coupling, k, b, law, *, tol=1e-12, max_iter=
 def solve_contact_forces(system: System, delta_lin, coupling, k):
     """Contact forces (batch, nc) at the end of a step from the contact-free deflections ``delta_lin``
     (batch, nc): solves ``delta + S f(delta) = delta_lin`` with ``S = G1^T K_eff^-1 G1`` (``coupling``) and
-    stiffnesses ``k`` (nc,). Returns ``(force, converged)``, converged of shape (batch,)."""
+    the law's inputs ``k`` (every leaf (nc,)). Returns ``(force, converged)``, converged of shape (batch,)."""
     b, law = system.contacts.clearance, system.contacts.law
     if delta_lin.shape[1] == 1:  # scalar contact: the law's own (closed-form where it exists) solve, no vmap
-        delta, ok = law.solve_single(delta_lin, coupling[0, 0], k[None, :], b[None, :])
+        delta, ok = law.solve_single(delta_lin, coupling[0, 0], _batched(k), b[None, :])
         ok = ok[:, 0]
     else:
         delta, ok = solve_contacts_batch(delta_lin, coupling, k, b, law)
-    return law.force(delta, k[None, :], b[None, :]), ok
+    return law.force(delta, _batched(k), b[None, :]), ok
 
 
 def sample_step(system: System, state: SampleState, s0: Snapshot, s1: Snapshot, h, draws, noise_scheme: str,
@@ -276,7 +283,7 @@ def sample_step(system: System, state: SampleState, s0: Snapshot, s1: Snapshot, 
         kinv_g0, kinv_g1 = x[:, col : col + nc], x[:, col + nc : col + 2 * nc]
         u_lin = u_lin - state.force @ kinv_g0.T
         force, ok = solve_contact_forces(system, u_lin @ s1.direction, s1.direction.T @ kinv_g1,
-                                         s1.contact_stiffness)
+                                         s1.contact_inputs)
         u1 = u_lin - force @ kinv_g1.T
     else:
         force = state.force
@@ -290,7 +297,7 @@ def sample_step(system: System, state: SampleState, s0: Snapshot, s1: Snapshot, 
 def initial_sample_state(system: System, s0: Snapshot, u0, v0) -> SampleState:
     """Batch state at t0 from (batch, n) displacements and velocities."""
     if system.n_contacts:
-        k, b = s0.contact_stiffness[None, :], system.contacts.clearance[None, :]
+        k, b = _batched(s0.contact_inputs), system.contacts.clearance[None, :]
         force = system.contacts.law.force(u0 @ s0.direction, k, b)
     else:
         force = jnp.zeros((u0.shape[0], 0))

@@ -19,6 +19,7 @@ Units are SI (m, kg, N, s) unless a model says otherwise; a DOF may be an angle 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from typing import Any
 
 import equinox as eqx
 import jax
@@ -90,19 +91,29 @@ class Contacts(eqx.Module):
     """A group of contacts sharing one contact law.
 
     ``direction``: (n_dof, n_contacts) array or ``t -> array``; column j is g_j (deflection = g_j^T q).
-    ``stiffness``: (n_contacts,) array or ``t -> array`` (N/m).
+    ``inputs``: the law's inputs at time t (:class:`pgtjax.ContactLaw`): an array (each leaf a scalar or
+    (n_contacts,)), a pytree of them, or a function of time returning one. For :class:`pgtjax.Backlash` it is
+    the mesh stiffness (N/m), which may also be given as ``stiffness=``.
     ``clearance``: (n_contacts,) half-clearances b >= 0 (m).
     """
 
     direction: ArrayOrFunction
-    stiffness: ArrayOrFunction
+    inputs: Any
     clearance: jax.Array
     names: tuple[str, ...] = eqx.field(static=True)
     law: ContactLaw = Backlash()
 
-    def __init__(self, direction, stiffness, clearance, names: Sequence[str] | None = None, law=None):
+    def __init__(self, direction, inputs=None, clearance=None, names: Sequence[str] | None = None, law=None, *,
+                 stiffness=None):
+        if (inputs is None) == (stiffness is None):
+            raise ValueError("Contacts: give the law's inputs either as `inputs` or (for Backlash) `stiffness`, once")
+        if clearance is None:
+            raise ValueError("Contacts: `clearance` (half-backlash b >= 0 per contact, m) is required")
+        inputs = stiffness if inputs is None else inputs
+        if isinstance(inputs, list | tuple) and not hasattr(inputs, "_fields"):  # a plain sequence is one array
+            inputs = jnp.asarray(inputs, dtype=jnp.float64)
         self.direction = direction if callable(direction) else jnp.asarray(direction, dtype=jnp.float64)
-        self.stiffness = stiffness if callable(stiffness) else jnp.asarray(stiffness, dtype=jnp.float64)
+        self.inputs = inputs if callable(inputs) else jax.tree.map(lambda x: jnp.asarray(x, jnp.float64), inputs)
         self.clearance = jnp.atleast_1d(jnp.asarray(clearance, dtype=jnp.float64))
         n = self.clearance.shape[0]
         self.names = tuple(names) if names is not None else tuple(f"contact{j}" for j in range(n))
@@ -111,6 +122,11 @@ class Contacts(eqx.Module):
     @property
     def count(self) -> int:
         return self.clearance.shape[0]
+
+    @property
+    def stiffness(self):
+        """Deprecated alias of :attr:`inputs` (the mesh stiffness of a :class:`pgtjax.Backlash` contact)."""
+        return self.inputs
 
 
 class System(eqx.Module):
@@ -177,10 +193,18 @@ class System(eqx.Module):
             return jnp.zeros((self.n_dof, 0))
         return at_time(self.contacts.direction, t)
 
-    def contact_stiffness(self, t) -> jax.Array:
+    def contact_inputs(self, t):
+        """The contact law's inputs at time ``t`` (every leaf (nc,)); empty for a system without contacts."""
         if self.contacts is None:
             return jnp.zeros((0,))
-        return jnp.broadcast_to(at_time(self.contacts.stiffness, t), (self.n_contacts,))
+        nc = self.n_contacts
+        return jax.tree.map(lambda x: jnp.broadcast_to(x, (nc,)), at_time(self.contacts.inputs, t))
+
+    def contact_stiffness(self, t) -> jax.Array:
+        """Stiffness (N/m) of each contact taken as closed at time ``t`` (the law's ``closed_stiffness``)."""
+        if self.contacts is None:
+            return jnp.zeros((0,))
+        return self.contacts.law.closed_stiffness(self.contact_inputs(t), self.contacts.clearance)
 
     def contact_clearance(self) -> jax.Array:
         return jnp.zeros((0,)) if self.contacts is None else self.contacts.clearance
@@ -263,12 +287,11 @@ def validate_system(system: System, t0: float = 0.0) -> None:
         g = system.contact_direction(jnp.asarray(t0, dtype=jnp.float64))
         _check_shape("contact direction", g, (n, nc))
         _check_finite("contact direction", g)
-        k = at_time(c.stiffness, jnp.asarray(t0, dtype=jnp.float64))
-        if jnp.shape(k) not in ((), (nc,)):
-            raise ValueError(f"`contact stiffness` must be a scalar or have shape ({nc},), got {jnp.shape(k)}")
-        _check_finite("contact stiffness", k)
-        if _is_concrete(k) and np.any(np.asarray(k) < 0.0):
-            raise ValueError("`contact stiffness` must be >= 0 N/m")
+        inputs = c.law.check_inputs(at_time(c.inputs, jnp.asarray(t0, dtype=jnp.float64)), nc)
+        for leaf in jax.tree.leaves(inputs):
+            _check_finite("contact stiffness" if isinstance(c.law, Backlash) else "contact-law inputs", leaf)
+        for leaf in jax.tree.leaves(c.law):
+            _check_finite(f"parameters of the contact law {type(c.law).__name__}", leaf)
         if len(c.names) != nc:
             raise ValueError(f"contact `names` must have {nc} entries, got {len(c.names)}")
 

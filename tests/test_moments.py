@@ -221,7 +221,7 @@ def test_closed_form_fixed_point_jacobian_equals_forward_mode_autodiff(criterion
     assert jac.dtype == jnp.float64
     np.testing.assert_allclose(jac, jac_ad, rtol=1e-10, atol=1e-12 * float(jnp.max(jnp.abs(jac_ad))))
     # the end terms are the law's linearization at z and (I + S K_e)^-1
-    lin = law.linearize(z[:nc], z[nc:], data.contact_stiffness, data.clearance, criterion)
+    lin = law.linearize(z[:nc], z[nc:], data.inputs, data.clearance, criterion)
     np.testing.assert_allclose(terms.lin.k_e, lin.k_e, rtol=1e-15)
     np.testing.assert_allclose(terms.r_inv @ (jnp.eye(nc) + data.coupling * lin.k_e[None, :]), jnp.eye(nc),
                                atol=1e-12)
@@ -254,7 +254,7 @@ def test_implicit_tangent_of_end_terms_equals_autodiff(criterion):
     nc = 4
     data = _contact_space_data(nc, 5)
     law, z, terms, d_data = _tangent_case(criterion, data)
-    _, (d_z, d_terms) = jax.jvp(lambda d: _implicit_solution(law, nc, criterion, z, terms, d), (data,), (d_data,))
+    _, (d_z, d_terms) = jax.jvp(lambda d: _implicit_solution(z, terms, d, law, nc, criterion), (data,), (d_data,))
     _, d_terms_ad = jax.jvp(lambda zz, dd: _end_terms(law, nc, criterion, zz, dd), (z, data), (d_z, d_data))
     for got, want in zip(jax.tree.leaves(d_terms), jax.tree.leaves(d_terms_ad)):
         assert got.dtype == jnp.float64
@@ -280,7 +280,7 @@ def test_implicit_tangent_of_fixed_point_equals_autodiff_formula(criterion, case
     elif case == "asymmetric_y":
         data = data._replace(covariance=data.covariance * (1.0 + 1e-3 * jnp.triu(jnp.ones((nc, nc)), 1)))
     law, z, terms, d_data = _tangent_case(criterion, data)
-    _, (d_z, _) = jax.jvp(lambda d: _implicit_solution(law, nc, criterion, z, terms, d), (data,), (d_data,))
+    _, (d_z, _) = jax.jvp(lambda d: _implicit_solution(z, terms, d, law, nc, criterion), (data,), (d_data,))
     residual = lambda zz, dd: _evaluate(law, nc, criterion, zz, dd)[0]  # noqa: E731
     jac = jax.jacfwd(residual)(z, data)
     _, d_res = jax.jvp(lambda dd: residual(z, dd), (data,), (d_data,))

@@ -104,8 +104,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import params as _params
-from ..contact import Backlash, ContactLaw, Linearization, check_criterion
-from ..system import Contacts, System
+from ..contact import Backlash, ContactLaw
+from ..deterministic import static_equilibrium as solve_static
+from ..system import Contacts, System, at_time
 from . import mesh_stiffness as ms
 
 Array = jax.Array
@@ -119,7 +120,8 @@ N_PLANETS = 3
 RPM = 2.0 * math.pi / 60.0  # rad/s per rpm
 
 _HERTZ_ITERATIONS = 8
-_GAUSS_HERMITE_POINTS = 24
+_STATIC_TOL = 1e-12  # relative residual of the quasi-static solve
+_STATIC_MAX_ITER = 40
 
 
 def _index(member: str, s: str) -> int:
@@ -563,7 +565,7 @@ class PairState(NamedTuple):
 
 
 class HertzianMesh(ContactLaw):
-    """Nonlinear mesh law (paper Eqs. 1-13) with the mesh phase passed as ``k`` (module docstring).
+    """Nonlinear mesh law (paper Eqs. 1-13); its input at time t is the mesh phase of each contact (cycles).
 
     Per contact (arrays with a trailing contact axis): the active path ``[s_start, s_end]`` [m] along the line
     of action, base pitch [m], contact ratio, a flag for "gear drives" (contact enters at the pinion tip), the
@@ -582,6 +584,7 @@ class HertzianMesh(ContactLaw):
     gear_drives: Array  # 1.0 where the gear drives (positions mirrored), else 0.0
     hertz_coef: Array
     table: Array  # (nc, n)
+    reference_stiffness: Array | None = None  # (nc,) mean tangent mesh stiffness under the nominal load [N/m]
 
     def pair_state(self, d, phase) -> PairState:
         """Pair quantities for the flank deflection ``d`` [m] (>0: compression) at mesh phase ``phase``."""
@@ -650,50 +653,13 @@ class HertzianMesh(ContactLaw):
         up, lo = self._flank(delta, k, b, energy)
         return up + lo
 
-    def _gauss(self, mu, sigma, k, b, fun):
-        z, w = np.polynomial.hermite.hermgauss(_GAUSS_HERMITE_POINTS)
-        z = jnp.reshape(jnp.asarray(z), (-1,) + (1,) * jnp.ndim(mu))
-        w = jnp.reshape(jnp.asarray(w / np.sqrt(np.pi)), (-1,) + (1,) * jnp.ndim(mu))
-        d = mu[None] + np.sqrt(2.0) * sigma[None] * z
-        kk = jnp.broadcast_to(k, jnp.shape(mu))[None]
-        bb = jnp.broadcast_to(b, jnp.shape(mu))[None]
-        return jnp.sum(w * fun(d, kk, bb), axis=0)
-
-    def linearize(self, mu, sigma, k, b, criterion: str = "force") -> Linearization:
-        """Gauss-Hermite expectations (24 points): ``f_0 = E[f]``, ``k_e = E[f']`` (force) or the energy
-        criterion of :mod:`pgtjax.contact`."""
-        check_criterion(criterion)
-        mu, sigma = jnp.asarray(mu, jnp.float64), jnp.asarray(sigma, jnp.float64)
-        f0 = self._gauss(mu, sigma, k, b, self.force)
-        k_force = self._gauss(mu, sigma, k, b, self.stiffness)
-        if criterion == "force":
-            return Linearization(k_force, f0)
-        pot = self.potential
-        if criterion == "energy":
-            excess = self._gauss(mu, sigma, k, b, pot) - pot(mu, k, b)
-        else:
-            excess = self._gauss(mu, sigma, k, b, pot)
-        safe = jnp.where(sigma > 0.0, sigma, 1.0)
-        k_e = jnp.where(sigma > 0.0, 2.0 / 3.0 * (k_force + excess / safe**2), k_force)
-        return Linearization(k_e, f0)
-
-    def force_moments(self, mu, sigma, k, b):
-        mu, sigma = jnp.asarray(mu, jnp.float64), jnp.asarray(sigma, jnp.float64)
-        m1 = self._gauss(mu, sigma, k, b, self.force)
-        m2 = self._gauss(mu, sigma, k, b, lambda d, kk, bb: self.force(d, kk, bb) ** 2)
-        return m1, jnp.sqrt(jnp.maximum(m2 - m1**2, 0.0))
-
-    def solve_single(self, delta_lin, coupling, k, b):
-        """Newton on ``delta + s f(delta) = delta_lin`` from ``delta_lin`` (monotone increasing left side)."""
-
-        def body(_, d):
-            return d - (d + coupling * self.force(d, k, b) - delta_lin) / (
-                1.0 + coupling * self.stiffness(d, k, b)
-            )
-
-        d = jax.lax.fori_loop(0, 40, body, delta_lin)
-        res = jnp.abs(d + coupling * self.force(d, k, b) - delta_lin)
-        return d, res <= 1e-10 * (jnp.abs(delta_lin) + b + 1e-300)
+    def closed_stiffness(self, phase, b):
+        """The mean tangent mesh stiffness under the nominal load (N/m): what modal analysis uses for a mesh
+        (the modes of the mean mesh stiffness) and the start of the static solve."""
+        if self.reference_stiffness is None:
+            raise ValueError("this HertzianMesh has no `reference_stiffness`; build it with "
+                             "`back_to_back.hertzian_mesh_law(params)`, which sets the mean mesh stiffness")
+        return jnp.broadcast_to(self.reference_stiffness, jnp.shape(b))
 
 
 def _compliance_table(mesh: ms.SpurMesh, n: int) -> tuple[Array, ms.ContactPath]:
@@ -702,9 +668,18 @@ def _compliance_table(mesh: ms.SpurMesh, n: int) -> tuple[Array, ms.ContactPath]
     return jax.vmap(lambda si: ms.pair_linear_compliance(mesh, si))(s), path
 
 
-@eqx.filter_jit
 def hertzian_mesh_law(p: BackToBackParams) -> HertzianMesh:
-    """The 12-contact law of the bench: contacts ordered as :data:`CONTACT_NAMES`."""
+    """The 12-contact law of the bench, contacts ordered as :data:`CONTACT_NAMES`, with its reference
+    (closed-contact) stiffness: the mean tangent mesh stiffness under the nominal load of ``sun_torque``
+    (:func:`mean_mesh_stiffness`)."""
+    law = _hertzian_mesh_tables(p)
+    k_sun, k_ring = _mean_stiffness(law, nominal_mesh_load(p, jnp.maximum(p.sun_torque, 1.0)), 64)
+    reference = jnp.concatenate([jnp.full(3, k_sun), jnp.full(3, k_ring)] * 2)
+    return eqx.tree_at(lambda law: law.reference_stiffness, law, reference, is_leaf=lambda x: x is None)
+
+
+@eqx.filter_jit
+def _hertzian_mesh_tables(p: BackToBackParams) -> HertzianMesh:
     tab_s, path_s = _compliance_table(p.sun_planet, p.table_points)
     tab_r, path_r = _compliance_table(p.ring_planet, p.table_points)
     # Test-set flank pattern: the sun drives the planet (gear drives), the planet drives the ring.
@@ -738,7 +713,7 @@ def mean_mesh_stiffness(
     under the quasi-static mesh load of ``torque`` (default ``sun_torque``; at least 1 N m), from
     :class:`HertzianMesh` (equal to :func:`mesh_stiffness.mesh_cycle`'s up to the table interpolation; tested)."""
     torque = p.sun_torque if torque is None else _f64(torque)
-    law = hertzian_mesh_law(p) if law is None else law
+    law = _hertzian_mesh_tables(p) if law is None else law
     return _mean_stiffness(law, nominal_mesh_load(p, jnp.maximum(torque, 1.0)), n_points)
 
 
@@ -816,8 +791,7 @@ def build(
     Kc = shaft_stiffness_matrix(p, motor=motor)
     G = contact_directions(p)
     hertz_law = hertzian_mesh_law(p)
-    k_sun, k_ring = mean_mesh_stiffness(p, law=hertz_law)
-    k_mean = jnp.concatenate([jnp.full(3, k_sun), jnp.full(3, k_ring)] * 2)
+    k_mean = hertz_law.reference_stiffness  # mean tangent stiffness of each mesh (mean_mesh_stiffness)
     K0 = Kc + (G * k_mean[None, :]) @ G.T
     alpha, beta = rayleigh_coefficients(p)
     C = alpha * M + beta * K0 if damping else jnp.zeros((12, 12))
@@ -851,35 +825,11 @@ def linear_system(params: BackToBackParams | None = None, *, motor: bool = False
 # ------------------------------------------------------------------------------------------ static solution
 
 
-@eqx.filter_jit
-def _static_newton(system: System, t, u0, v, n_iter: int = 40):
-    from ..system import at_time
-
-    K = at_time(system.stiffness, t)
-    F = at_time(system.load, t) - at_time(system.damping, t) @ v
-    G = system.contact_direction(t)
-    k = system.contact_stiffness(t)
-    b = system.contact_clearance()
-    law = system.contacts.law
-
-    def residual(u):
-        return K @ u + G @ law.force(G.T @ u, k, b) - F
-
-    def body(_, u):
-        jac = K + (G * law.stiffness(G.T @ u, k, b)[None, :]) @ G.T
-        return u - jnp.linalg.solve(jac, residual(u))
-
-    u = jax.lax.fori_loop(0, n_iter, body, u0)
-    return u, jnp.max(jnp.abs(residual(u))) / jnp.max(jnp.abs(F))
-
-
 def static_equilibrium(model: BenchModel, t: float = 0.0) -> Array:
     """Displacement [m] of the quasi-static state at time t: ``K u + G f(G^T u) = F(t) - C v_rigid(t)`` with
-    the train turning rigidly at the prescribed speed (the damping load of the rigid rotation cancels). Newton
-    from the linear solution with the meshes at their mean stiffness, offset by the backlash. Raises
-    ``ValueError`` if it does not converge."""
-    from ..system import at_time
-
+    the train turning rigidly at the prescribed speed (:func:`pgtjax.static_equilibrium` with that velocity;
+    differentiable, raises ``RuntimeError`` if Newton does not converge). Newton starts from the linear
+    solution with the meshes at their mean stiffness, offset by the backlash."""
     s = model.system
     t = jnp.asarray(t, jnp.float64)
     v = model.rigid * model.profile.speed(t)
@@ -891,13 +841,7 @@ def static_equilibrium(model: BenchModel, t: float = 0.0) -> Array:
         u0 = jnp.linalg.solve(K + (G * k[None, :]) @ G.T, F + G @ (k * b))
     else:
         u0 = jnp.zeros(s.n_dof)
-    u, rel = _static_newton(s, t, u0, v)
-    if not float(rel) < 1e-9:
-        raise ValueError(
-            f"static equilibrium did not converge (relative residual {float(rel):.2e}); "
-            "check the loads (`sun_torque`) and stiffnesses"
-        )
-    return u
+    return solve_static(s, t, velocity=v, initial_guess=u0, tol=_STATIC_TOL, max_iter=_STATIC_MAX_ITER)
 
 
 def initial_state(model: BenchModel, t: float = 0.0) -> tuple[Array, Array]:
