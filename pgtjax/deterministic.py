@@ -11,7 +11,8 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from .newmark import initial_sample_state, sample_step, snapshot
+from ._loop import saved_scan
+from .newmark import AbstractIntegrator, initial_sample_state, resolve_integrator, sample_step, snapshot
 from .results import Trajectory
 from .system import System, check_count, initial_state, validate_system, validate_time_grid
 
@@ -25,20 +26,22 @@ def simulate(
     initial_displacement=None,
     initial_velocity=None,
     save_every: int = 1,
+    integrator: AbstractIntegrator | None = None,
 ) -> Trajectory:
     """Integrate the noise-free system from a given state; returns a labelled :class:`Trajectory` saved at
-    ``t0 + k * save_every * dt``. The noise input ``B`` is ignored."""
+    ``t0 + k * save_every * dt``. The noise input ``B`` is ignored. ``integrator``: the time discretization
+    (default :class:`pgtjax.Newmark`, average acceleration)."""
     validate_system(system, t0)
     n_steps, save_every = validate_time_grid(dt, n_steps, save_every)
     u0, v0 = initial_state(system, initial_displacement, initial_velocity)
     return _simulate_jit(
         system, jnp.asarray(t0, jnp.float64), jnp.asarray(dt, jnp.float64), u0, v0,
-        n_steps=n_steps, save_every=save_every,
+        n_steps=n_steps, save_every=save_every, integrator=resolve_integrator(integrator, None),
     )
 
 
 @eqx.filter_jit
-def _simulate_jit(system, t0, dt, u0, v0, *, n_steps, save_every):
+def _simulate_jit(system, t0, dt, u0, v0, *, n_steps, save_every, integrator):
     s0 = snapshot(system, t0)
     state = initial_sample_state(system, s0, u0[None], v0[None])
     no_noise = jnp.zeros((1, 0))
@@ -46,18 +49,14 @@ def _simulate_jit(system, t0, dt, u0, v0, *, n_steps, save_every):
     def record(state, snap):
         return state.u[0], state.v[0], (state.u @ snap.direction)[0], state.force[0]
 
-    def block(carry, block_index):
-        def inner(c, j):
-            state, snap0, bad = c
-            snap1 = snapshot(system, t0 + dt * (block_index * save_every + j + 1))
-            state, ok = sample_step(system, state, snap0, snap1, dt, no_noise, "trapezoidal")
-            return (state, snap1, bad + jnp.sum(~ok)), None
+    def step(c, step_number, _):
+        state, snap0, bad = c
+        snap1 = snapshot(system, t0 + dt * step_number)
+        state, ok = sample_step(system, state, snap0, snap1, dt, no_noise, integrator)
+        return (state, snap1, bad + jnp.sum(~ok)), None
 
-        carry, _ = jax.lax.scan(inner, carry, jnp.arange(save_every))
-        return carry, record(carry[0], carry[1])
-
-    (_, _, bad), saved = jax.lax.scan(block, (state, s0, jnp.array(0)), jnp.arange(n_steps // save_every))
-    saved = jax.tree.map(lambda a, b: jnp.concatenate([a[None], b], axis=0), record(state, s0), saved)
+    (_, _, bad), saved = saved_scan(step, lambda c, _, __: record(c[0], c[1]), (state, s0, jnp.array(0)),
+                                    record(state, s0), n_blocks=n_steps // save_every, save_every=save_every)
     times = t0 + dt * save_every * jnp.arange(n_steps // save_every + 1, dtype=jnp.float64)
     return Trajectory(
         times=times, dof_names=system.dof_names, dof_units=system.dof_units,

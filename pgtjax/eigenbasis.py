@@ -39,7 +39,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .newmark import Snapshot, noise_matrices, solve_contact_forces
+from .newmark import (
+    AbstractIntegrator,
+    NewmarkBridge,
+    Snapshot,
+    effective_stiffness,
+    from_displacement,
+    from_velocity,
+    solve_contact_forces,
+)
 from .system import System
 
 MAX_MAP_ERROR = 1e-10  # relative error of W Lambda W^-1 x against T x accepted on random states x
@@ -97,9 +105,9 @@ def eigen_propagator(system: System, h: float) -> tuple[EigenPropagator | None, 
     M, C, K = (np.asarray(a, dtype=np.float64) for a in (system.mass, system.damping, system.stiffness))
     n = M.shape[0]
     eye = np.eye(n)
-    a_inv = np.linalg.solve(K + (2.0 / h) * C + (4.0 / h**2) * M, eye)
-    x_u = a_inv @ ((4.0 / h**2) * M + (2.0 / h) * C - K)
-    x_v = a_inv @ ((4.0 / h) * M)
+    a_inv = np.linalg.solve(effective_stiffness(M, C, K, h), eye)
+    x_u = a_inv @ from_displacement(M, C, K, h)
+    x_v = a_inv @ from_velocity(M, h)
     t_map = np.block([[x_u, (2.0 / h) * x_v], [x_u - eye, (2.0 / h) * x_v - eye]])
     if not np.all(np.isfinite(t_map)):
         return None, "the step map is not finite"
@@ -158,7 +166,7 @@ def eigen_physical(prop: EigenPropagator, state: EigenSampleState, snap: Snapsho
 
 
 def eigen_sample_step(system: System, prop: EigenPropagator, state: EigenSampleState, s0: Snapshot,
-                      s1: Snapshot, draws, noise_scheme: str):
+                      s1: Snapshot, draws, integrator: AbstractIntegrator):
     """:func:`pgtjax.newmark.sample_step` in eigen-coordinates (module docstring); same arguments, with the
     step ``prop.h``. Returns the new state and the per-sample contact-solve flag.
 
@@ -170,9 +178,9 @@ def eigen_sample_step(system: System, prop: EigenPropagator, state: EigenSampleS
     columns = [jnp.ones((state.y.shape[0], 1), state.y.dtype)]
     rows = [((s0.load + s1.load) @ prop.force_input.T)[None, :]]
     if draws.shape[1]:
-        noise, v_noise = noise_matrices(system, s0, s1, h, noise_scheme)
+        noise, v_noise = integrator.noise_matrices(system, s0, s1, h)
         z_noise = prop.force_input @ noise
-        if noise_scheme == "newmark":
+        if isinstance(integrator, NewmarkBridge):
             z_noise = z_noise + (0.5 * h) * (prop.basis_inverse[:, system.n_dof :] @ v_noise)
         columns.append(draws)
         rows.append(z_noise.T)

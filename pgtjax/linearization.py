@@ -36,16 +36,16 @@ import jax.numpy as jnp
 import numpy as np
 from jax.ad_checkpoint import checkpoint_name
 
+from ._loop import saved_scan
 from ._numerics import safe_sqrt
 from .contact import Linearization, check_criterion
 from .newmark import (
+    AbstractIntegrator,
     ConstantPropagator,
     Snapshot,
-    check_noise_scheme,
-    constant_propagator,
-    noise_matrices,
+    effective_stiffness,
+    resolve_integrator,
     snapshot,
-    step_matrices,
 )
 from .results import MomentResult
 from .system import Observables, System, initial_state, validate_system, validate_time_grid
@@ -396,7 +396,7 @@ def _record(system, carry: _Carry, info: _FixedPointInfo, t, observables) -> _Sa
     )
 
 
-def _moment_step(system: System, carry: _Carry, t1, h, criterion, noise_scheme, rtol, max_iter, lu_const=None):
+def _moment_step(system: System, carry: _Carry, t1, h, criterion, integrator, rtol, max_iter, lu_const=None):
     """One step of the recursion. The covariance update ``Phi P Phi^T + Gamma Gamma^T`` is done blockwise
     from ``Z = [E D] P`` and ``A = K_eff^-1 Z`` (Phi itself is never formed): with ``X_u = K_eff^-1 [E D]``
     the displacement rows of Phi, ``X_u P = A``, ``X_u P X_u^T = K_eff^-1 Z [E D]^T K_eff^-T`` and the velocity
@@ -405,7 +405,7 @@ def _moment_step(system: System, carry: _Carry, t1, h, criterion, noise_scheme, 
     s0, mean, cov = carry.snap, carry.mean, carry.cov
     s1 = snapshot(system, t1)
     k0_lin, f0_lin = _linearized_terms(system, s0, carry.z, carry.lin)
-    mats = step_matrices(system, s0._replace(stiffness=k0_lin), s1, h, noise_scheme)
+    mats = integrator.step_matrices(system, s0._replace(stiffness=k0_lin), s1, h)
     e_mat, d_mat = mats.from_displacement, mats.from_velocity
     p_top, p_bot = cov[:n, :], cov[n:, :]
     z_mat = e_mat @ p_top + d_mat @ p_bot  # [E D] P, (n, 2n)
@@ -484,11 +484,11 @@ def _varying_snapshot(system: System, t) -> Snapshot:
     return snapshot(system, t)._replace(damping=None, stiffness=None)
 
 
-def _moment_step_constant(system: System, carry: _Carry, t1, h, criterion, noise_scheme, rtol, max_iter,
+def _moment_step_constant(system: System, carry: _Carry, t1, h, criterion, integrator, rtol, max_iter,
                           prop: ConstantPropagator):
     """One step of the recursion when K and C are constant (only the contacts, load and noise input vary).
 
-    The contact-free map ``X = A^-1 [E, D]`` is formed once per run (:func:`constant_propagator`); the
+    The contact-free map ``X = A^-1 [E, D]`` is formed once per run (the integrator's ``init``); the
     linearized contacts at the two ends of the step are rank-nc corrections of it:
 
         X_a = X - A^-1 G0 [K_e0 G0^T, 0]                   (start-of-step contacts, moved into E)
@@ -501,7 +501,7 @@ def _moment_step_constant(system: System, carry: _Carry, t1, h, criterion, noise
     n, nc = system.n_dof, system.n_contacts
     s0, mean, cov = carry.snap, carry.mean, carry.cov
     s1 = _varying_snapshot(system, t1)
-    noise, v_noise = noise_matrices(system, s0, s1, h, noise_scheme)
+    noise, v_noise = integrator.noise_matrices(system, s0, s1, h)
     x, a_inv = prop.x, prop.a_inv
     if nc:
         g0, g1 = s0.direction, s1.direction
@@ -552,7 +552,8 @@ def solve_moments(
     initial_velocity=None,
     initial_covariance=None,
     criterion: str = "force",
-    noise_scheme: str = "trapezoidal",
+    noise_scheme: str | None = None,
+    integrator: AbstractIntegrator | None = None,
     save_every: int = 1,
     rtol: float = 1e-10,
     max_iter: int = 50,
@@ -570,7 +571,9 @@ def solve_moments(
         initial_displacement, initial_velocity: mean initial state (default 0).
         initial_covariance: (2n, 2n) covariance of ``(u, v)`` at ``t0`` (default 0: deterministic start).
         criterion: ``"force"`` (Eqs. 3.37-3.42), ``"energy"`` (ch. 4, corrected) or ``"energy_origin"``.
-        noise_scheme: ``"trapezoidal"`` (exact stationary covariance) or ``"newmark"`` (the documents').
+        integrator: the time discretization, :class:`pgtjax.Newmark` (default: exact stationary covariance)
+            or :class:`pgtjax.NewmarkBridge` (the documents' scheme).
+        noise_scheme: shorthand for ``integrator``: ``"trapezoidal"`` (Newmark) or ``"newmark"`` (NewmarkBridge).
         rtol: tolerance of the per-step fixed point, relative to ``|mu| + sigma + b`` of each contact.
         max_iter: Newton iterations allowed per step.
         throw: raise if a step's fixed point does not converge or a NaN appears (works under ``jit``);
@@ -587,7 +590,7 @@ def solve_moments(
     validate_system(system, t0)
     n_steps, save_every = validate_time_grid(dt, n_steps, save_every)
     check_criterion(criterion)
-    check_noise_scheme(noise_scheme)
+    integrator = resolve_integrator(integrator, noise_scheme)
     if isinstance(rtol, bool) or not isinstance(rtol, numbers.Real) or not 0.0 < rtol < 1.0:
         raise ValueError(f"`rtol` must be a number in (0, 1), got {rtol!r}")
     if isinstance(max_iter, bool) or not isinstance(max_iter, numbers.Integral) or max_iter < 1:
@@ -601,19 +604,19 @@ def solve_moments(
         raise ValueError("`initial_covariance` must be finite")
     return _solve_moments_jit(
         system, jnp.asarray(t0, jnp.float64), jnp.asarray(dt, jnp.float64), u0, v0, p0,
-        n_steps=n_steps, save_every=save_every, criterion=criterion, noise_scheme=noise_scheme,
+        n_steps=n_steps, save_every=save_every, criterion=criterion, integrator=integrator,
         rtol=rtol, max_iter=max_iter, throw=throw, checkpoint=checkpoint, observables=observables,
     )
 
 
 @eqx.filter_jit
 def _solve_moments_jit(
-    system, t0, dt, u0, v0, p0, *, n_steps, save_every, criterion, noise_scheme, rtol, max_iter, throw, checkpoint,
+    system, t0, dt, u0, v0, p0, *, n_steps, save_every, criterion, integrator, rtol, max_iter, throw, checkpoint,
     observables,
 ):
     mean0 = jnp.concatenate([u0, v0])
     # K and C constant: the contact-free step operators are formed once per run (and differentiated once)
-    prop = constant_propagator(system, dt)
+    prop = integrator.init(system, dt)
     constant_path = prop is not None and system.n_dof > _DENSE_PHI_MAX_DOF
     s0 = _varying_snapshot(system, t0) if constant_path else snapshot(system, t0)
     z0 = _contact_state(system, s0, mean0, p0)
@@ -623,27 +626,21 @@ def _solve_moments_jit(
     n_blocks = n_steps // save_every
     lu_const = None
     if prop is not None and not constant_path:
-        k_eff = system.stiffness + (2.0 / dt) * system.damping + (4.0 / dt**2) * system.mass
-        lu_const = jax.scipy.linalg.lu_factor(k_eff)
+        lu_const = jax.scipy.linalg.lu_factor(effective_stiffness(system.mass, system.damping, system.stiffness, dt))
 
-    def block(carry, block_index):
-        def inner(c, j):
-            t1 = t0 + dt * (block_index * save_every + j + 1)
-            if constant_path:
-                return _moment_step_constant(system, c, t1, dt, criterion, noise_scheme, rtol, max_iter, prop)
-            return _moment_step(system, c, t1, dt, criterion, noise_scheme, rtol, max_iter, lu_const)
+    def step(c, step_number, _):
+        t1 = t0 + dt * step_number
+        if constant_path:
+            return _moment_step_constant(system, c, t1, dt, criterion, integrator, rtol, max_iter, prop)
+        return _moment_step(system, c, t1, dt, criterion, integrator, rtol, max_iter, lu_const)
 
-        carry, infos = jax.lax.scan(inner, carry, jnp.arange(save_every))
-        worst = _FixedPointInfo(
-            jnp.max(infos.iterations), jnp.max(infos.residual), jnp.all(infos.converged)
-        )
-        t_end = t0 + dt * (block_index + 1) * save_every
-        return carry, _record(system, carry, worst, t_end, observables)
+    def record(c, infos, block_index):
+        worst = _FixedPointInfo(jnp.max(infos.iterations), jnp.max(infos.residual), jnp.all(infos.converged))
+        return _record(system, c, worst, t0 + dt * (block_index + 1) * save_every, observables)
 
-    if checkpoint:
-        block = jax.checkpoint(block, policy=jax.checkpoint_policies.save_only_these_names(_FIXED_POINT_NAME))
-    _, saved = jax.lax.scan(block, carry, jnp.arange(n_blocks))
-    saved = jax.tree.map(lambda a, b: jnp.concatenate([a[None], b], axis=0), first, saved)
+    policy = jax.checkpoint_policies.save_only_these_names(_FIXED_POINT_NAME) if checkpoint else None
+    _, saved = saved_scan(step, record, carry, first, n_blocks=n_blocks, save_every=save_every,
+                          remat_policy=policy)
     times = t0 + dt * save_every * jnp.arange(n_blocks + 1, dtype=jnp.float64)
     if throw:
         bad_value = ~jnp.all(jnp.isfinite(saved.mean)) | ~jnp.all(jnp.isfinite(saved.var))

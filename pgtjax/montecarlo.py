@@ -21,14 +21,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from .eigenbasis import eigen_initial_state, eigen_physical, eigen_propagator, eigen_sample_step
-from .newmark import (
-    check_noise_scheme,
-    constant_propagator,
-    initial_sample_state,
-    noise_dimension,
-    sample_step,
-    snapshot,
-)
+from ._loop import saved_scan
+from .newmark import AbstractIntegrator, initial_sample_state, resolve_integrator, sample_step, snapshot
 from .results import MonteCarloResult
 from .system import Observables, System, check_count, initial_state, validate_system, validate_time_grid
 
@@ -55,10 +49,10 @@ def quantity_names(system: System, observables: Observables | None = None) -> li
 @eqx.filter_jit
 def _chunk(
     system, key, sample_ids, weights, u0, v0, init_factor, t0, dt, hist_edges, observables, eigen, *, n_steps,
-    save_every, noise_scheme, hist_columns,
+    save_every, integrator, hist_columns,
 ):
     n_batch = sample_ids.shape[0]
-    nd = noise_dimension(system, noise_scheme)
+    nd = integrator.noise_dimension(system)
     sample_keys = jax.vmap(jax.random.fold_in, in_axes=(None, 0))(key, sample_ids)
     s0 = snapshot(system, t0)
     n = u0.shape[0]
@@ -72,10 +66,10 @@ def _chunk(
     total = jnp.sum(weights)
     clearance = system.contact_clearance()
     if eigen is None:  # physical coordinates
-        prop = constant_propagator(system, dt)  # None if K or C varies in time
+        prop = integrator.init(system, dt)  # None if K or C varies in time
 
         def step(state, snap0, snap1, draws):
-            return sample_step(system, state, snap0, snap1, dt, draws, noise_scheme, prop)
+            return sample_step(system, state, snap0, snap1, dt, draws, integrator, prop)
 
         def physical(state, snap):
             return state.u, state.v
@@ -83,7 +77,7 @@ def _chunk(
         state = eigen_initial_state(eigen, state.u, state.v, state.force, s0)
 
         def step(state, snap0, snap1, draws):
-            return eigen_sample_step(system, eigen, state, snap0, snap1, draws, noise_scheme)
+            return eigen_sample_step(system, eigen, state, snap0, snap1, draws, integrator)
 
         def physical(state, snap):
             return eigen_physical(eigen, state, snap)
@@ -108,34 +102,30 @@ def _chunk(
         counts = jnp.stack(counts) if counts else jnp.zeros((0, 0))
         return mean, m2, loss, counts
 
-    def block(carry, block_index):
+    def block_draws(block_index):
         # One RNG call per sample and saved block (not per step): the draws of sample s in block j are
         # normal(fold_in(fold_in(key, s), j)), independent of how samples are chunked.
-        if nd:
-            draws = jax.vmap(
-                lambda k: jax.random.normal(jax.random.fold_in(k, block_index), (save_every, nd))
-            )(sample_keys)
-            draws = jnp.swapaxes(draws, 0, 1)  # (save_every, batch, nd)
-        else:
-            draws = jnp.zeros((save_every, n_batch, 0))
+        if not nd:
+            return jnp.zeros((save_every, n_batch, 0))
+        draws = jax.vmap(lambda k: jax.random.normal(jax.random.fold_in(k, block_index), (save_every, nd)))(
+            sample_keys
+        )
+        return jnp.swapaxes(draws, 0, 1)  # (save_every, batch, nd)
 
-        def inner(c, xs):
-            j, step_draws = xs
-            state, snap0, bad = c
-            t1 = t0 + dt * (block_index * save_every + j + 1)
-            snap1 = snapshot(system, t1)
-            state, ok = step(state, snap0, snap1, step_draws)
-            bad = bad + jnp.sum(weights * (~ok))
-            return (state, snap1, bad), None
+    def advance(c, step_number, step_draws):
+        state, snap0, bad = c
+        snap1 = snapshot(system, t0 + dt * step_number)
+        state, ok = step(state, snap0, snap1, step_draws)
+        return (state, snap1, bad + jnp.sum(weights * (~ok))), None
 
-        carry, _ = jax.lax.scan(inner, carry, (jnp.arange(save_every), draws))
-        state, snap, _ = carry
-        return carry, statistics(state, snap, t0 + dt * (block_index + 1) * save_every)
+    def record(c, _, block_index):
+        state, snap, _ = c
+        return statistics(state, snap, t0 + dt * (block_index + 1) * save_every)
 
     first = statistics(state, s0, t0)
     carry = (state, s0, jnp.array(0.0))
-    carry, saved = jax.lax.scan(block, carry, jnp.arange(n_steps // save_every))
-    saved = jax.tree.map(lambda a, b: jnp.concatenate([a[None], b], axis=0), first, saved)
+    carry, saved = saved_scan(advance, record, carry, first, n_blocks=n_steps // save_every,
+                              save_every=save_every, block_inputs=block_draws)
     return saved, carry[2]
 
 
@@ -151,7 +141,8 @@ def monte_carlo(
     initial_velocity=None,
     initial_covariance=None,
     observables: Observables | None = None,
-    noise_scheme: str = "trapezoidal",
+    noise_scheme: str | None = None,
+    integrator: AbstractIntegrator | None = None,
     save_every: int = 1,
     chunk_size: int = 5000,
     histograms: Mapping[str, Sequence[float]] | None = None,
@@ -162,7 +153,7 @@ def monte_carlo(
     """Monte Carlo statistics of the nonlinear system driven by sampled white noise.
 
     Args:
-        system, t0, dt, n_steps, save_every, noise_scheme, initial_*, observables: as in
+        system, t0, dt, n_steps, save_every, integrator, noise_scheme, initial_*, observables: as in
             :func:`pgtjax.solve_moments`; with ``initial_covariance`` each sample starts from a Gaussian draw.
         n_samples: number of samples (>= 2).
         key: a ``jax.random`` key (e.g. ``jax.random.key(0)``).
@@ -178,7 +169,7 @@ def monte_carlo(
     """
     validate_system(system, t0)
     n_steps, save_every = validate_time_grid(dt, n_steps, save_every)
-    check_noise_scheme(noise_scheme)
+    integrator = resolve_integrator(integrator, noise_scheme)
     check_count("n_samples", n_samples, minimum=2)
     check_count("chunk_size", chunk_size)
     if propagation not in PROPAGATIONS:
@@ -228,7 +219,7 @@ def monte_carlo(
         (m_c, m2_c, loss_c, counts_c), bad_c = _chunk(
             system, key, jnp.asarray(ids), jnp.asarray(weights), u0, v0, init_factor,
             jnp.asarray(t0, jnp.float64), jnp.asarray(dt, jnp.float64), hist_edges, observables, eigen,
-            n_steps=n_steps, save_every=save_every, noise_scheme=noise_scheme, hist_columns=tuple(hist_columns),
+            n_steps=n_steps, save_every=save_every, integrator=integrator, hist_columns=tuple(hist_columns),
         )
         n_c = float(weights.sum())
         m_c, m2_c = np.asarray(m_c), np.asarray(m2_c)

@@ -30,24 +30,130 @@ second-order accurate and unconditionally stable.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+import abc
+from typing import ClassVar, NamedTuple
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 
 from .system import System, at_time
 
-NOISE_SCHEMES = ("trapezoidal", "newmark")
+def effective_stiffness(mass, damping, stiffness, h):
+    """``K_eff = K + (2/h) C + (4/h^2) M``: the matrix solved at every step (module docstring)."""
+    return stiffness + (2.0 / h) * damping + (4.0 / h**2) * mass
 
 
-def check_noise_scheme(noise_scheme: str) -> None:
+def from_displacement(mass, damping, stiffness, h):
+    """``E = (4/h^2) M + (2/h) C - K``: the start-of-step displacement's share of the right-hand side."""
+    return (4.0 / h**2) * mass + (2.0 / h) * damping - stiffness
+
+
+def from_velocity(mass, h):
+    """``D = (4/h) M``: the start-of-step velocity's share of the right-hand side."""
+    return (4.0 / h) * mass
+
+
+class AbstractIntegrator(eqx.Module):
+    """Strategy: the time discretization every solver uses (SL moments, Monte Carlo, deterministic).
+
+    A subclass gives the step's matrices (:meth:`step_matrices`, :meth:`noise_matrices`) and the number of
+    standard normals drawn per step; :meth:`init` forms once per run what does not change from step to step.
+    The solvers take one with ``integrator=`` (default :class:`Newmark`).
+    """
+
+    name: ClassVar[str]
+
+    @abc.abstractmethod
+    def noise_dimension(self, system: System) -> int:
+        """Number of standard normals drawn per step."""
+
+    @abc.abstractmethod
+    def noise_matrices(self, system: System, s0: Snapshot, s1: Snapshot, h):
+        """``(noise input per draw, velocity correction per draw)``, each (n, n_draws)."""
+
+    @abc.abstractmethod
+    def step_matrices(self, system: System, s0: Snapshot, s1: Snapshot, h) -> StepMatrices: ...
+
+    @abc.abstractmethod
+    def init(self, system: System, h) -> ConstantPropagator | None:
+        """The run's step operators formed once (``None`` where K or C depends on time)."""
+
+
+class _AverageAcceleration(AbstractIntegrator):
+    """Average-acceleration Newmark (beta = 1/4, gamma = 1/2) in effective-stiffness form (thesis Eqs.
+    3.45-3.51 / 4.52-4.60, module docstring); the subclasses differ in how the noise enters a step."""
+
+    def step_matrices(self, system: System, s0: Snapshot, s1: Snapshot, h) -> StepMatrices:
+        c_mid = 0.5 * (s0.damping + s1.damping)
+        k_eff = effective_stiffness(system.mass, c_mid, s1.stiffness, h)
+        from_u = from_displacement(system.mass, c_mid, s0.stiffness, h)
+        noise, v_noise = self.noise_matrices(system, s0, s1, h)
+        return StepMatrices(k_eff, from_u, from_velocity(system.mass, h), noise, v_noise)
+
+    def init(self, system: System, h) -> ConstantPropagator | None:
+        """:class:`ConstantPropagator` of ``system`` for step ``h``, or None if K or C is time-varying."""
+        if callable(system.stiffness) or callable(system.damping):
+            return None
+        M, C, K = system.mass, system.damping, system.stiffness
+        n = M.shape[0]
+        a_inv = jnp.linalg.solve(effective_stiffness(M, C, K, h), jnp.eye(n, dtype=M.dtype))
+        rhs = jnp.concatenate([from_displacement(M, C, K, h), from_velocity(M, h)], axis=1)
+        return ConstantPropagator(a_inv, a_inv @ rhs)
+
+
+class Newmark(_AverageAcceleration):
+    """Average-acceleration Newmark with the white noise's increment over each step (the default).
+
+    For a linear system its stationary covariance equals the continuous one exactly, for any step."""
+
+    name: ClassVar[str] = "trapezoidal"
+
+    def noise_dimension(self, system: System) -> int:
+        return system.n_noise
+
+    def noise_matrices(self, system: System, s0: Snapshot, s1: Snapshot, h):
+        b_s = 0.5 * (s0.noise_input + s1.noise_input)  # B at mid-step (exact for constant B)
+        b_n = (2.0 / jnp.sqrt(h)) * b_s
+        return b_n, jnp.zeros_like(b_n)
+
+
+class NewmarkBridge(_AverageAcceleration):
+    """The documents' stochastic Newmark scheme: the increment plus the Brownian-bridge term of its time
+    integral (``B dt sqrt(dt) / sqrt(12)``, Eq. 3.49 / 4.58 as corrected). Its stationary covariance is
+    ``P_c + h^2/12 A P_c A^T``: mode variances inflated by ``1 + (omega h)^2 / 12``."""
+
+    name: ClassVar[str] = "newmark"
+
+    def noise_dimension(self, system: System) -> int:
+        return 2 * system.n_noise
+
+    def noise_matrices(self, system: System, s0: Snapshot, s1: Snapshot, h):
+        b_s = 0.5 * (s0.noise_input + s1.noise_input)
+        b_n = (2.0 / jnp.sqrt(h)) * b_s
+        root12 = jnp.sqrt(12.0)
+        b_p = (4.0 / (root12 * jnp.sqrt(h))) * b_s
+        minv_bs = jnp.linalg.solve(system.mass, b_s)
+        v_noise = jnp.concatenate([jnp.zeros_like(b_n), -(2.0 * jnp.sqrt(h) / root12) * minv_bs], axis=1)
+        return jnp.concatenate([b_n, b_p], axis=1), v_noise
+
+
+NOISE_SCHEMES = {"trapezoidal": Newmark, "newmark": NewmarkBridge}
+
+
+def resolve_integrator(integrator: AbstractIntegrator | None, noise_scheme: str | None) -> AbstractIntegrator:
+    """The integrator a solver uses: ``integrator`` if given, else the one named by the ``noise_scheme``
+    shorthand (``"trapezoidal"``: :class:`Newmark`, the default; ``"newmark"``: :class:`NewmarkBridge`)."""
+    if integrator is not None:
+        if not isinstance(integrator, AbstractIntegrator):
+            raise ValueError(f"`integrator` must be a pgtjax integrator (e.g. pgtjax.Newmark()), got {integrator!r}")
+        if noise_scheme is not None and noise_scheme != integrator.name:
+            raise ValueError(f"`noise_scheme={noise_scheme!r}` contradicts `integrator={integrator!r}`: give one")
+        return integrator
+    noise_scheme = "trapezoidal" if noise_scheme is None else noise_scheme
     if noise_scheme not in NOISE_SCHEMES:
-        raise ValueError(f"`noise_scheme` must be one of {NOISE_SCHEMES}, got {noise_scheme!r}")
-
-
-def noise_dimension(system: System, noise_scheme: str) -> int:
-    """Number of standard normals drawn per step (N, and P for the documents' scheme)."""
-    return system.n_noise * (2 if noise_scheme == "newmark" else 1)
+        raise ValueError(f"`noise_scheme` must be one of {tuple(NOISE_SCHEMES)}, got {noise_scheme!r}")
+    return NOISE_SCHEMES[noise_scheme]()
 
 
 class Snapshot(NamedTuple):
@@ -82,29 +188,6 @@ class StepMatrices(NamedTuple):
     velocity_noise: jax.Array  # velocity correction per draw (n, n_draws)
 
 
-def noise_matrices(system: System, s0: Snapshot, s1: Snapshot, h, noise_scheme: str):
-    """``([B_N, B_P], velocity correction per draw)`` of one step (module docstring), each (n, n_draws)."""
-    b_s = 0.5 * (s0.noise_input + s1.noise_input)  # B at mid-step (exact for constant B)
-    b_n = (2.0 / jnp.sqrt(h)) * b_s
-    if noise_scheme == "newmark":
-        root12 = jnp.sqrt(12.0)
-        b_p = (4.0 / (root12 * jnp.sqrt(h))) * b_s
-        minv_bs = jnp.linalg.solve(system.mass, b_s)
-        v_noise = jnp.concatenate([jnp.zeros_like(b_n), -(2.0 * jnp.sqrt(h) / root12) * minv_bs], axis=1)
-        return jnp.concatenate([b_n, b_p], axis=1), v_noise
-    return b_n, jnp.zeros_like(b_n)
-
-
-def step_matrices(system: System, s0: Snapshot, s1: Snapshot, h, noise_scheme: str) -> StepMatrices:
-    M = system.mass
-    c_mid = 0.5 * (s0.damping + s1.damping)
-    k_eff = s1.stiffness + (2.0 / h) * c_mid + (4.0 / h**2) * M
-    from_u = (4.0 / h**2) * M + (2.0 / h) * c_mid - s0.stiffness
-    from_v = (4.0 / h) * M
-    noise, v_noise = noise_matrices(system, s0, s1, h, noise_scheme)
-    return StepMatrices(k_eff, from_u, from_v, noise, v_noise)
-
-
 class ConstantPropagator(NamedTuple):
     """Step operators of a system whose K and C do not depend on time (contacts excluded), formed once
     per run: ``A^-1`` with ``A = K + (2/h) C + (4/h^2) M`` (the contact-free K_eff) and
@@ -112,17 +195,6 @@ class ConstantPropagator(NamedTuple):
 
     a_inv: jax.Array  # (n, n)
     x: jax.Array  # (n, 2n)
-
-
-def constant_propagator(system: System, h) -> ConstantPropagator | None:
-    """The :class:`ConstantPropagator` of ``system`` for step ``h``, or None if K or C is time-varying."""
-    if callable(system.stiffness) or callable(system.damping):
-        return None
-    M, C, K = system.mass, system.damping, system.stiffness
-    n = M.shape[0]
-    a_inv = jnp.linalg.solve(K + (2.0 / h) * C + (4.0 / h**2) * M, jnp.eye(n, dtype=M.dtype))
-    rhs = jnp.concatenate([(4.0 / h**2) * M + (2.0 / h) * C - K, (4.0 / h) * M], axis=1)
-    return ConstantPropagator(a_inv, a_inv @ rhs)
 
 
 def velocity_update(u0, v0, u1, h):
@@ -249,8 +321,8 @@ def solve_contact_forces(system: System, delta_lin, coupling, k):
     return law.force(delta, _batched(k), b[None, :]), ok
 
 
-def sample_step(system: System, state: SampleState, s0: Snapshot, s1: Snapshot, h, draws, noise_scheme: str,
-                prop: ConstantPropagator | None = None):
+def sample_step(system: System, state: SampleState, s0: Snapshot, s1: Snapshot, h, draws,
+                integrator: AbstractIntegrator, prop: ConstantPropagator | None = None):
     """Advance a batch of samples of the *nonlinear* system by one step (module docstring).
 
     ``draws`` are the standard normals of the step, (batch, noise_dimension). The solve with ``K_eff`` is
@@ -259,14 +331,14 @@ def sample_step(system: System, state: SampleState, s0: Snapshot, s1: Snapshot, 
     the per-sample contact-solve flag.
     """
     n, nc = system.n_dof, system.n_contacts
-    noise, v_noise = noise_matrices(system, s0, s1, h, noise_scheme)
+    noise, v_noise = integrator.noise_matrices(system, s0, s1, h)
     blocks = [(s0.load + s1.load)[:, None]]
     if draws.shape[1]:
         blocks.append(noise)
     if nc:
         blocks += [s0.direction, s1.direction]
     if prop is None:
-        mats = step_matrices(system, s0, s1, h, noise_scheme)
+        mats = integrator.step_matrices(system, s0, s1, h)
         x = jnp.linalg.solve(mats.effective_stiffness, jnp.concatenate(
             [mats.from_displacement, mats.from_velocity] + blocks, axis=1))
         x_state, x = x[:, : 2 * n], x[:, 2 * n :]
@@ -289,7 +361,7 @@ def sample_step(system: System, state: SampleState, s0: Snapshot, s1: Snapshot, 
         force = state.force
         u1 = u_lin
     v1 = velocity_update(state.u, state.v, u1, h)
-    if noise_scheme == "newmark" and draws.shape[1]:
+    if isinstance(integrator, NewmarkBridge) and draws.shape[1]:
         v1 = v1 + draws @ v_noise.T
     return SampleState(u1, v1, force), ok
 
