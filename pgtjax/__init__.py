@@ -7,6 +7,7 @@ Studies, plots and the CLI sit on top.
 """
 
 from . import _config  # noqa: F401  (enables float64 before anything else)
+from ._failure import SolverError as SolverError
 from .contact import Backlash as Backlash
 from .contact import ContactLaw as ContactLaw
 from .contact import Linearization as Linearization

@@ -11,6 +11,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from ._failure import SolverError, error_if_nonfinite, is_concrete, raise_if_nonfinite
 from ._loop import saved_scan
 from .newmark import AbstractIntegrator, initial_sample_state, resolve_integrator, sample_step, snapshot
 from .results import Trajectory
@@ -27,17 +28,32 @@ def simulate(
     initial_velocity=None,
     save_every: int = 1,
     integrator: AbstractIntegrator | None = None,
+    throw: bool = True,
 ) -> Trajectory:
     """Integrate the noise-free system from a given state; returns a labelled :class:`Trajectory` saved at
     ``t0 + k * save_every * dt``. The noise input ``B`` is ignored. ``integrator``: the time discretization
-    (default :class:`pgtjax.Newmark`, average acceleration)."""
+    (default :class:`pgtjax.Newmark`, average acceleration). ``throw``: raise :class:`pgtjax.SolverError`
+    naming the first time and quantity that is not finite, or if a contact solve did not converge (with
+    ``False`` the trajectory is returned as it is; ``unconverged`` counts the failed steps)."""
     validate_system(system, t0)
     n_steps, save_every = validate_time_grid(dt, n_steps, save_every)
     u0, v0 = initial_state(system, initial_displacement, initial_velocity)
-    return _simulate_jit(
+    result = _simulate_jit(
         system, jnp.asarray(t0, jnp.float64), jnp.asarray(dt, jnp.float64), u0, v0,
         n_steps=n_steps, save_every=save_every, integrator=resolve_integrator(integrator, None),
     )
+    if not throw:
+        return result
+    solver = "simulate"
+    fields = {"displacement": (result.u, result.dof_names), "velocity": (result.v, result.dof_names),
+              "contact force": (result.force, result.contact_names)}
+    if not is_concrete(result):
+        return error_if_nonfinite(solver, result, [a for a, _ in fields.values()])
+    raise_if_nonfinite(solver, result.times, fields)
+    if int(result.unconverged):
+        raise SolverError(f"{solver}: the contact Newton solve did not converge in {int(result.unconverged)} steps; "
+                          "reduce `dt` or check the contact law, or pass throw=False to read `unconverged`")
+    return result
 
 
 @eqx.filter_jit

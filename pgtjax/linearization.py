@@ -36,6 +36,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.ad_checkpoint import checkpoint_name
 
+from ._failure import SolverError, error_if_nonfinite, is_concrete, raise_if_nonfinite
 from ._loop import saved_scan
 from ._numerics import safe_sqrt
 from .contact import Linearization, check_criterion
@@ -576,8 +577,9 @@ def solve_moments(
         noise_scheme: shorthand for ``integrator``: ``"trapezoidal"`` (Newmark) or ``"newmark"`` (NewmarkBridge).
         rtol: tolerance of the per-step fixed point, relative to ``|mu| + sigma + b`` of each contact.
         max_iter: Newton iterations allowed per step.
-        throw: raise if a step's fixed point does not converge or a NaN appears (works under ``jit``);
-            with ``False`` the flags are returned in the result (``converged``, ``iterations``, ``residual``).
+        throw: raise :class:`pgtjax.SolverError` naming the first time and quantity where a value is not
+            finite or a step's fixed point did not converge (under ``jit``, an error without the time); with
+            ``False`` the flags are returned in the result (``converged``, ``iterations``, ``residual``).
         checkpoint: rematerialize each saved block in reverse mode: the state is kept once per saved block,
             plus, per step, the fixed point's solution and its tangent rule's contact-space quantities (about
             6 nc^2 + 16 nc numbers), so that the rematerialization repeats neither the iterations nor that
@@ -602,16 +604,44 @@ def solve_moments(
         raise ValueError(f"`initial_covariance` must have shape {(2 * n, 2 * n)}, got {p0.shape}")
     if not isinstance(p0, jax.core.Tracer) and not np.all(np.isfinite(np.asarray(p0))):
         raise ValueError("`initial_covariance` must be finite")
-    return _solve_moments_jit(
+    result = _solve_moments_jit(
         system, jnp.asarray(t0, jnp.float64), jnp.asarray(dt, jnp.float64), u0, v0, p0,
         n_steps=n_steps, save_every=save_every, criterion=criterion, integrator=integrator,
-        rtol=rtol, max_iter=max_iter, throw=throw, checkpoint=checkpoint, observables=observables,
+        rtol=rtol, max_iter=max_iter, checkpoint=checkpoint, observables=observables,
     )
+    return _checked(result) if throw else result
+
+
+def _checked(result: MomentResult) -> MomentResult:
+    """The result, or a :class:`pgtjax.SolverError` naming the first time and quantity that is not finite or
+    whose fixed point did not converge (an in-``jit`` error where the result is traced)."""
+    solver = "solve_moments (SL)"
+    fields = {
+        "mean displacement": (result.mean_u, result.dof_names), "std of displacement": (result.std_u, result.dof_names),
+        "mean velocity": (result.mean_v, result.dof_names), "std of velocity": (result.std_v, result.dof_names),
+        "mean contact force": (result.force_mean, result.contact_names),
+        "std of contact force": (result.force_std, result.contact_names),
+    }
+    not_converged = "the fixed point of the step linearization did not converge"
+    knobs = "raise `max_iter`, reduce `dt`, or pass throw=False to inspect `converged`, `residual` and `iterations`"
+    if is_concrete(result):
+        raise_if_nonfinite(solver, result.times, fields)
+        converged = np.asarray(result.converged)
+        if not converged.all():
+            k = int(np.argmin(converged))
+            raise SolverError(
+                f"{solver}: {not_converged} in the block ending at t = {float(result.times[k]):.6g} s (scaled "
+                f"residual {float(result.residual[k]):.3g} after {int(result.iterations[k])} iterations); {knobs}"
+            )
+        return result
+    # every leaf of the result carries the checks, so no use of any part of it escapes them
+    result = error_if_nonfinite(solver, result, [a for a, _ in fields.values()])
+    return eqx.error_if(result, ~jnp.all(result.converged), f"{solver}: {not_converged}; {knobs}")
 
 
 @eqx.filter_jit
 def _solve_moments_jit(
-    system, t0, dt, u0, v0, p0, *, n_steps, save_every, criterion, integrator, rtol, max_iter, throw, checkpoint,
+    system, t0, dt, u0, v0, p0, *, n_steps, save_every, criterion, integrator, rtol, max_iter, checkpoint,
     observables,
 ):
     mean0 = jnp.concatenate([u0, v0])
@@ -642,15 +672,4 @@ def _solve_moments_jit(
     _, saved = saved_scan(step, record, carry, first, n_blocks=n_blocks, save_every=save_every,
                           remat_policy=policy)
     times = t0 + dt * save_every * jnp.arange(n_blocks + 1, dtype=jnp.float64)
-    if throw:
-        bad_value = ~jnp.all(jnp.isfinite(saved.mean)) | ~jnp.all(jnp.isfinite(saved.var))
-        saved = saved._replace(
-            mean=eqx.error_if(saved.mean, bad_value, "SL moment recursion produced NaN/inf: check the "
-                              "parameters (stiffness, damping, time step)."),
-        )
-        saved = saved._replace(
-            mean=eqx.error_if(saved.mean, ~jnp.all(saved.converged),
-                              "SL fixed point did not converge at some step: raise `max_iter`, reduce `dt`, "
-                              "or pass throw=False to inspect `converged`/`residual`."),
-        )
     return MomentResult.from_saved(system, times, saved, criterion=criterion, observables=observables)

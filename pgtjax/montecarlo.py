@@ -21,15 +21,22 @@ import jax.numpy as jnp
 import numpy as np
 
 from .eigenbasis import eigen_initial_state, eigen_physical, eigen_propagator, eigen_sample_step
+from ._failure import SolverError, raise_if_nonfinite
 from ._loop import saved_scan
 from .newmark import AbstractIntegrator, initial_sample_state, resolve_integrator, sample_step, snapshot
 from .results import MonteCarloResult
 from .system import Observables, System, check_count, initial_state, validate_system, validate_time_grid
 
-try:  # progress bars are a convenience, not a requirement
-    from tqdm.auto import tqdm
-except ImportError:  # pragma: no cover
-    tqdm = None
+def _progress_bar(total: int, enabled: bool):
+    """A tqdm bar, or None. Imported only when asked for: ``tqdm.auto`` warns at import time in a Jupyter
+    kernel without ipywidgets, even for a run without a bar."""
+    if not enabled:
+        return None
+    try:
+        from tqdm.auto import tqdm
+    except ImportError:  # pragma: no cover - progress bars are a convenience, not a requirement
+        return None
+    return tqdm(total=total, desc="Monte Carlo", unit="sample")
 
 
 PROPAGATIONS = ("auto", "eigen", "physical")
@@ -149,6 +156,7 @@ def monte_carlo(
     histogram_times: Sequence[float] = (),
     progress: bool = True,
     propagation: str = "auto",
+    throw: bool = True,
 ) -> MonteCarloResult:
     """Monte Carlo statistics of the nonlinear system driven by sampled white noise.
 
@@ -166,6 +174,9 @@ def monte_carlo(
             contact-free Newmark map (:mod:`pgtjax.eigenbasis`; constant K and C only), O(n (nc + n_draws))
             per sample and step instead of O(n^2), the same scheme to rounding; ``"physical"``: the DOFs themselves;
             ``"auto"`` (default): eigen where the basis is accepted, else physical.
+        throw: raise :class:`pgtjax.SolverError` naming the first time and quantity where a statistic is not
+            finite, or if a contact solve did not converge; with ``False`` the result is returned as it is
+            (``unconverged`` counts the failed solves).
     """
     validate_system(system, t0)
     n_steps, save_every = validate_time_grid(dt, n_steps, save_every)
@@ -212,7 +223,7 @@ def monte_carlo(
     total_n = 0.0
     mean = m2 = loss = counts = None
     bad = 0.0
-    bar = tqdm(total=n_samples, desc="Monte Carlo", unit="sample", disable=not progress) if tqdm else None
+    bar = _progress_bar(n_samples, progress)
     for c in range(n_chunks):
         ids = np.arange(c * chunk, (c + 1) * chunk)
         weights = (ids < n_samples).astype(np.float64)
@@ -237,13 +248,17 @@ def monte_carlo(
             bar.update(int(n_c))
     if bar is not None:
         bar.close()
-    if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(m2))):
-        raise FloatingPointError("Monte Carlo produced NaN/inf: check the parameters and the time step")
-
     std = np.sqrt(np.maximum(m2, 0.0) / (total_n - 1.0))
     nc = system.n_contacts
     cut = np.cumsum([n, n, nc, nc])
     times = t0 + dt * save_every * np.arange(n_steps // save_every + 1)
+    if throw:
+        raise_if_nonfinite("monte_carlo", times, {"sample mean": (mean, names), "sample std": (std, names)})
+        if bad:
+            raise SolverError(
+                f"monte_carlo: the contact Newton solve did not converge in {int(bad)} (sample, step) pairs; "
+                "reduce `dt` or check the contact law, or pass throw=False to read `unconverged`"
+            )
     hist_idx = np.array([int(np.argmin(np.abs(times - t))) for t in histogram_times], dtype=int)
     split = lambda a: np.split(a, cut, axis=1)  # noqa: E731
     mu_u, mu_v, mu_d, mu_f, mu_o = split(mean)
