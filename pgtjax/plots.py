@@ -1,21 +1,35 @@
-"""Publication-style figures shared by the studies (matplotlib, Agg backend; PNG at 200 dpi)."""
+"""Publication-style figures shared by the studies and the notebooks.
+
+This module never selects a matplotlib backend: that is the application's choice (ipykernel's inline backend
+in Jupyter, ``MPLBACKEND``, or matplotlib's own default, which is Agg on a machine without a display).
+
+The figure builders here (:func:`mean_std_figure`, :func:`pdf_figure`) return
+:class:`matplotlib.figure.Figure` objects made without pyplot: they need no display and no particular
+backend, so a headless study or CLI run writes its PNGs whatever backend is configured, and no figure is left
+open in pyplot's registry. Save one with :func:`save` (or ``fig.savefig``); in a notebook show it with
+``display(fig)`` or as a cell's value (after ``%matplotlib inline``), not with ``plt.show()``, which only
+knows pyplot's figures.
+
+``plt`` (pyplot) stays exported for the studies that draw their own figures with it; :func:`save` closes
+those.
+"""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib as mpl
+import matplotlib.pyplot as plt
+import numpy as np
+from matplotlib.figure import Figure
 
 STYLE = {
     "font.size": 9, "axes.labelsize": 9, "axes.titlesize": 9, "legend.fontsize": 8, "lines.linewidth": 1.2,
     "axes.grid": True, "grid.alpha": 0.3, "figure.dpi": 100, "savefig.dpi": 200, "savefig.bbox": "tight",
 }
 LINESTYLES = {"MC": dict(color="k", lw=1.6), "SL force": dict(color="tab:blue", ls="--"),
-              "SL energy": dict(color="tab:red", ls=":"), "SL energy_origin": dict(color="tab:green", ls="-.")}
+              "SL energy": dict(color="tab:red", ls=":"),
+              "SL energy_origin": dict(color="tab:green", ls="-.")}
 
 _SCALE = {"m": (1e6, "µm"), "rad": (1.0, "rad"), "N": (1e-3, "kN"), "m/s": (1e3, "mm/s")}
 
@@ -53,14 +67,15 @@ def mean_std_figure(times, curves: dict, quantities: list[tuple[str, str]], titl
     ``curves[label][quantity] = (mean array, second array)``; ``quantities`` = [(name, unit)]; ``times`` (s)
     is one array for every curve or ``{label: array}`` (e.g. SL saved more densely than MC); ``styles``
     overrides :data:`LINESTYLES` per label (e.g. markers for a sparser curve); ``subtitle`` is a line of small
-    print under the title.
+    print under the title. Returns a :class:`~matplotlib.figure.Figure` outside pyplot (see the module's
+    note).
     """
     styles = {**LINESTYLES, **(styles or {})}
     times_of = times if isinstance(times, dict) else {label: times for label in curves}
     t_scale, t_unit = _time_axis(next(iter(times_of.values())))
-    with plt.rc_context(STYLE):
-        fig, axes = plt.subplots(2, len(quantities), figsize=(2.6 * len(quantities) + 0.6, 4.4), squeeze=False,
-                                 sharex=True)
+    with mpl.rc_context(STYLE):
+        fig = Figure(figsize=(2.6 * len(quantities) + 0.6, 4.4))
+        axes = fig.subplots(2, len(quantities), squeeze=False, sharex=True)
         for j, (name, unit) in enumerate(quantities):
             factor, shown = scaled(unit)
             f2 = factor**2 if second == "mean square" else factor
@@ -83,14 +98,16 @@ def mean_std_figure(times, curves: dict, quantities: list[tuple[str, str]], titl
 
 
 def pdf_figure(edges, counts, n_samples, gaussians: dict, clearance=None, unit="m", title=""):
-    """MC histogram as a density against Gaussian densities ``{label: (mean, std)}``; shaded backlash zone."""
+    """MC histogram as a density against Gaussian densities ``{label: (mean, std)}``; shaded backlash zone.
+    Returns a :class:`~matplotlib.figure.Figure` outside pyplot (see the module's note)."""
     factor, shown = scaled(unit)
     edges = np.asarray(edges) * factor
     width = np.diff(edges)
     density = np.asarray(counts) / (n_samples * width)
     x = np.linspace(edges[0], edges[-1], 600)
-    with plt.rc_context(STYLE):
-        fig, ax = plt.subplots(figsize=(4.2, 3.0))
+    with mpl.rc_context(STYLE):
+        fig = Figure(figsize=(4.2, 3.0))
+        ax = fig.subplots()
         ax.stairs(density, edges, fill=True, color="0.8", label="MC histogram")
         ax.stairs(density, edges, color="k", lw=0.8)
         for label, (mu, sd) in gaussians.items():
@@ -110,7 +127,9 @@ def pdf_figure(edges, counts, n_samples, gaussians: dict, clearance=None, unit="
 
 
 def save(fig, path) -> Path:
+    """Write ``fig`` to ``path`` (format from the suffix) and close it if pyplot manages it (the studies' own
+    figures; the builders' figures are not in pyplot and need no closing); returns ``path`` as a Path."""
     path = Path(path)
     fig.savefig(path)
-    plt.close(fig)
+    plt.close(fig)  # a no-op for a figure that pyplot does not manage
     return path

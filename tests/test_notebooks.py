@@ -1,6 +1,12 @@
-"""Execute the notebooks at a small size (their parameters are read from environment variables)."""
+"""Execute the notebooks at a small size (their parameters are read from environment variables) and check that
+they show their figures.
 
-import os
+The kernel must draw with ipykernel's own default, the inline backend: CI exports ``MPLBACKEND=Agg``, and
+a kernel that inherits it renders nothing, which would hide exactly the bug this test guards against
+(library code that forces a non-interactive backend, so that a notebook shows no figure). So ``MPLBACKEND``
+is removed from the kernel's environment.
+"""
+
 from pathlib import Path
 
 import nbformat
@@ -8,15 +14,49 @@ import pytest
 from nbclient import NotebookClient
 
 NOTEBOOKS = sorted((Path(__file__).parents[1] / "notebooks").glob("*.ipynb"))
-SMALL = {"PGTJAX_NOTEBOOK_SAMPLES": "600", "PGTJAX_NOTEBOOK_T_END": "0.006", "PGTJAX_NOTEBOOK_PERIODS": "0.02",
-         "PGTJAX_NOTEBOOK_OPT_STEPS": "3", "MPLBACKEND": "Agg"}
+SMALL = {"PGTJAX_NOTEBOOK_SAMPLES": "600", "PGTJAX_NOTEBOOK_T_END": "0.006",
+         "PGTJAX_NOTEBOOK_PERIODS": "0.02", "PGTJAX_NOTEBOOK_OPT_STEPS": "3"}
+# Figures each notebook shows (the same at every size), one image output each.
+EXPECTED_FIGURES = {
+    "back_to_back": 2,  # run-up stiffness/TE/acceleration panels, STFT
+    "gear_pair": 6,  # three regimes x (moments against time, PDF of the mesh deflection)
+    "planetary": 6,  # DOFs, appendix DOFs, contact point, meshing forces, their zoom, rim-thickness sweep
+    "ring": 4,  # mode shapes, contact-point and mid-node responses, speed sweep
+}
+
+
+def _outputs(nb):
+    return [o for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", [])]
+
+
+def image_count(nb) -> int:
+    """PNG images the executed notebook displayed (``display_data`` or a cell's ``execute_result``)."""
+    return sum(o.output_type in ("display_data", "execute_result") and "image/png" in o.get("data", {})
+               for o in _outputs(nb))
+
+
+def test_every_notebook_has_an_expected_figure_count():
+    assert sorted(EXPECTED_FIGURES) == [p.stem for p in NOTEBOOKS]
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])
 def test_notebook_executes(path, monkeypatch):
     for k, v in SMALL.items():
         monkeypatch.setenv(k, v)
+    monkeypatch.delenv("MPLBACKEND", raising=False)  # the kernel must use ipykernel's inline backend
     nb = nbformat.read(path, as_version=4)
-    NotebookClient(nb, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(path.parent)}}).execute()
-    errors = [o for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", []) if o.output_type == "error"]
-    assert not errors
+    # a last cell reports the backend the notebook ended with: nothing may have switched away from inline
+    nb.cells.append(nbformat.v4.new_code_cell("import matplotlib\nprint(matplotlib.get_backend())"))
+    client = NotebookClient(nb, timeout=600, kernel_name="python3",
+                            resources={"metadata": {"path": str(path.parent)}})
+    client.execute()
+    backend = "".join(o.get("text", "") for o in nb.cells.pop().outputs if o.output_type == "stream")
+    outputs = _outputs(nb)
+    errors = [o for o in outputs if o.output_type == "error"]
+    assert not errors, [f"{o.ename}: {o.evalue}" for o in errors]
+    images = image_count(nb)
+    assert images > 0, f"{path.name} displayed no figure"
+    assert images == EXPECTED_FIGURES.get(path.stem), f"{path.name}: {images} figures displayed"
+    assert backend.strip() == "module://matplotlib_inline.backend_inline", backend
+    stderr = "".join(o.get("text", "") for o in outputs if o.output_type == "stream" and o.name == "stderr")
+    assert "IProgress not found" not in stderr
