@@ -104,6 +104,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import params as _params
+from .._validate import check_range
 from ..contact import Backlash, ContactLaw
 from ..deterministic import static_equilibrium as solve_static
 from ..system import Contacts, System, at_time
@@ -135,15 +136,6 @@ def _concrete(x) -> bool:
     return not isinstance(x, jax.core.Tracer)
 
 
-def _check(name: str, value, lo: float, hi: float, unit: str, *, lo_closed: bool = False) -> None:
-    """ValueError unless lo < value <= hi (lo <= value if lo_closed); traced values are not checked."""
-    if not _concrete(value):
-        return
-    v = float(np.asarray(value))
-    ok = np.isfinite(v) and (v >= lo if lo_closed else v > lo) and v <= hi
-    if not ok:
-        lb = "[" if lo_closed else "("
-        raise ValueError(f"`{name}` must be in {lb}{lo:g}, {hi:g}] {unit}; got {value!r}")
 
 
 def _f64(x) -> Array:
@@ -234,32 +226,18 @@ def validate(p: BackToBackParams) -> None:
             f"`ring_planet.z_gear` ({p.z_ring}) must exceed z_sun + z_planet ({p.z_sun + p.z_planet})"
         )
     for name in ("sun_inertia", "planet_inertia", "carrier_inertia", "ring_inertia"):
-        _check(name, getattr(p, name), 0.0, 1e3, "kg m^2")
-    _check("planet_mass", p.planet_mass, 0.0, 1e4, "kg")
-    _check("carrier_radius", p.carrier_radius, 0.0, 10.0, "m")
+        check_range(name, getattr(p, name), lo=0.0, hi=1e3, lo_closed=False, unit="kg m^2")
+    check_range("planet_mass", p.planet_mass, lo=0.0, hi=1e4, lo_closed=False, unit="kg")
+    check_range("carrier_radius", p.carrier_radius, lo=0.0, hi=10.0, lo_closed=False, unit="m")
     for name in ("sun_shaft_stiffness", "carrier_shaft_stiffness"):
-        _check(name, getattr(p, name), 0.0, 1e12, "N m/rad")
-    _check(
-        "motor_shaft_stiffness",
-        p.motor_shaft_stiffness,
-        0.0,
-        1e12,
-        "N m/rad (0 detaches the motor)",
-        lo_closed=True,
-    )
-    _check(
-        "ring_support_stiffness",
-        p.ring_support_stiffness,
-        0.0,
-        1e14,
-        "N m/rad (0 frees the test ring)",
-        lo_closed=True,
-    )
-    _check("half_backlash", p.half_backlash, 0.0, 1e-3, "m", lo_closed=True)
-    _check("reaction_phase_offset", p.reaction_phase_offset, -1e6, 1e6, "mesh cycles")
-    _check("damping_ratio", p.damping_ratio, 0.0, 1.0, "(fraction of critical)", lo_closed=True)
-    _check("rayleigh_f1", p.rayleigh_f1, 0.0, 1e6, "Hz")
-    _check("rayleigh_f2", p.rayleigh_f2, 0.0, 1e6, "Hz")
+        check_range(name, getattr(p, name), lo=0.0, hi=1e12, lo_closed=False, unit="N m/rad")
+    check_range("motor_shaft_stiffness", p.motor_shaft_stiffness, lo=0.0, hi=1e12, lo_closed=True, unit="N m/rad (0 detaches the motor)")
+    check_range("ring_support_stiffness", p.ring_support_stiffness, lo=0.0, hi=1e14, lo_closed=True, unit="N m/rad (0 frees the test ring)")
+    check_range("half_backlash", p.half_backlash, lo=0.0, hi=1e-3, lo_closed=True, unit="m")
+    check_range("reaction_phase_offset", p.reaction_phase_offset, lo=-1e6, hi=1e6, lo_closed=False, unit="mesh cycles")
+    check_range("damping_ratio", p.damping_ratio, lo=0.0, hi=1.0, lo_closed=True, unit="(fraction of critical)")
+    check_range("rayleigh_f1", p.rayleigh_f1, lo=0.0, hi=1e6, lo_closed=False, unit="Hz")
+    check_range("rayleigh_f2", p.rayleigh_f2, lo=0.0, hi=1e6, lo_closed=False, unit="Hz")
     if (
         _concrete(p.rayleigh_f1)
         and _concrete(p.rayleigh_f2)
@@ -268,12 +246,12 @@ def validate(p: BackToBackParams) -> None:
         raise ValueError(
             f"`rayleigh_f2` must exceed `rayleigh_f1`; got {p.rayleigh_f2!r} <= {p.rayleigh_f1!r}"
         )
-    _check("sun_torque", p.sun_torque, 0.0, 1e5, "N m (circulating test-sun torque)", lo_closed=True)
-    _check("torque_end", p.torque_end, 0.0, 1e5, "N m", lo_closed=True)
-    _check("speed_start", p.speed_start, 0.0, 2e3, "rad/s", lo_closed=True)
-    _check("speed_end", p.speed_end, 0.0, 2e3, "rad/s", lo_closed=True)
-    _check("ramp_start", p.ramp_start, 0.0, 1e4, "s", lo_closed=True)
-    _check("ramp_duration", p.ramp_duration, 0.0, 1e4, "s")
+    check_range("sun_torque", p.sun_torque, lo=0.0, hi=1e5, lo_closed=True, unit="N m (circulating test-sun torque)")
+    check_range("torque_end", p.torque_end, lo=0.0, hi=1e5, lo_closed=True, unit="N m")
+    check_range("speed_start", p.speed_start, lo=0.0, hi=2e3, lo_closed=True, unit="rad/s")
+    check_range("speed_end", p.speed_end, lo=0.0, hi=2e3, lo_closed=True, unit="rad/s")
+    check_range("ramp_start", p.ramp_start, lo=0.0, hi=1e4, lo_closed=True, unit="s")
+    check_range("ramp_duration", p.ramp_duration, lo=0.0, hi=1e4, lo_closed=False, unit="s")
     if not isinstance(p.table_points, int | np.integer) or not 16 <= int(p.table_points) <= 100_000:
         raise ValueError(f"`table_points` must be an integer in [16, 100000]; got {p.table_points!r}")
 

@@ -28,6 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import params as _params
+from .._validate import check_range
 from ..contact import Backlash
 from ..system import Contacts, FourierSeries, System
 
@@ -92,12 +93,12 @@ _POSITIVE = (
 def validate(p: GearPairParams) -> None:
     """``ValueError`` naming the parameter for values outside their physical range."""
     for name in _POSITIVE:
-        _check(name, getattr(p, name), lambda v: v > 0, "> 0")
-    _check("half_backlash", p.half_backlash, lambda v: v >= 0, ">= 0 m")
-    _check("damping_ratio", p.damping_ratio, lambda v: (v > 0) & (v < 1), "in (0, 1)")
-    _check("spectral_density", p.spectral_density, lambda v: v >= 0, ">= 0")
+        check_range(name, getattr(p, name), lo=0.0, lo_closed=False)
+    check_range("half_backlash", p.half_backlash, lo=0.0, unit="m")
+    check_range("damping_ratio", p.damping_ratio, lo=0.0, hi=1.0, lo_closed=False, hi_closed=False)
+    check_range("spectral_density", p.spectral_density, lo=0.0)
     for name in ("noise_amplitude", "torque_in", "torque_out", "mesh_sin", "mesh_cos"):
-        _check(name, getattr(p, name), lambda v: np.isfinite(v), "finite")
+        check_range(name, getattr(p, name))
     if not isinstance(p, jax.core.Tracer) and _concrete(p.mesh_stiffness):
         amplitude = float(np.sum(np.abs(np.asarray(p.mesh_sin))) + np.sum(np.abs(np.asarray(p.mesh_cos))))
         if amplitude >= float(p.mesh_stiffness):
@@ -109,13 +110,6 @@ def validate(p: GearPairParams) -> None:
 
 def _concrete(x) -> bool:
     return eqx.is_array(x) and not isinstance(x, jax.core.Tracer)
-
-
-def _check(name, value, ok, accepted):
-    if _concrete(value):
-        v = np.asarray(value)
-        if not np.all(np.isfinite(v)) or not np.all(ok(v)):
-            raise ValueError(f"`{name}` must be {accepted}, got {v.tolist()}")
 
 
 def default_params() -> GearPairParams:

@@ -58,7 +58,6 @@ Assumptions (the paper is silent):
 from __future__ import annotations
 
 import math
-import tomllib
 from functools import partial
 from pathlib import Path
 from typing import NamedTuple
@@ -67,6 +66,9 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+
+from .. import params as _params
+from .._validate import check_range
 
 Array = jax.Array
 
@@ -160,17 +162,6 @@ def _is_concrete(x) -> bool:
     return not isinstance(x, jax.core.Tracer)
 
 
-def _check_range(name: str, value, lo: float, hi: float, unit: str, *, lo_closed=False, hi_closed=True):
-    """Raise ValueError unless lo < value <= hi (brackets per flags); tracers are not checked."""
-    if not _is_concrete(value):
-        return
-    v = np.asarray(value, dtype=np.float64)
-    lo_ok = np.all(v >= lo) if lo_closed else np.all(v > lo)
-    hi_ok = np.all(v <= hi) if hi_closed else np.all(v < hi)
-    if not (np.all(np.isfinite(v)) and lo_ok and hi_ok):
-        lb = "[" if lo_closed else "("
-        rb = "]" if hi_closed else ")"
-        raise ValueError(f"`{name}` must be in {lb}{lo}, {hi}{rb} {unit}; got {value!r}")
 
 
 def _f64(x) -> Array:
@@ -241,22 +232,22 @@ class SpurMesh(eqx.Module):
             raise ValueError(f"`n_segments` must be an integer in [4, 2000]; got {n_segments!r}")
         if modulus_kind not in _MODULUS_KINDS:
             raise ValueError(f"`modulus_kind` must be one of {_MODULUS_KINDS}; got {modulus_kind!r}")
-        _check_range("module", module, 0.0, 0.1, "m (SI metres, e.g. 4.23e-3 for 4.23 mm)")
-        _check_range("pressure_angle", pressure_angle, 0.17, 0.61, "rad (10 to 35 degrees)")
-        _check_range("face_width", face_width, 0.0, 1.0, "m")
-        _check_range("youngs_modulus", youngs_modulus, 1e9, 1e12, "Pa")
-        _check_range("poisson_ratio", poisson_ratio, 0.0, 0.5, "", hi_closed=False)
-        _check_range("addendum_coef", addendum_coef, 0.0, 2.0, "x module")
-        _check_range("dedendum_coef", dedendum_coef, 0.0, 2.5, "x module")
+        check_range("module", module, lo=0.0, hi=0.1, lo_closed=False, unit="m (SI metres, e.g. 4.23e-3 for 4.23 mm)")
+        check_range("pressure_angle", pressure_angle, lo=0.17, hi=0.61, lo_closed=False, unit="rad (10 to 35 degrees)")
+        check_range("face_width", face_width, lo=0.0, hi=1.0, lo_closed=False, unit="m")
+        check_range("youngs_modulus", youngs_modulus, lo=1e9, hi=1e12, lo_closed=False, unit="Pa")
+        check_range("poisson_ratio", poisson_ratio, lo=0.0, hi=0.5, lo_closed=False, hi_closed=False, unit="")
+        check_range("addendum_coef", addendum_coef, lo=0.0, hi=2.0, lo_closed=False, unit="x module")
+        check_range("dedendum_coef", dedendum_coef, lo=0.0, hi=2.5, lo_closed=False, unit="x module")
         if _is_concrete(addendum_coef) and _is_concrete(dedendum_coef):
             if not float(dedendum_coef) > float(addendum_coef):
                 raise ValueError(
                     f"`dedendum_coef` must exceed `addendum_coef` (root clearance); "
                     f"got {dedendum_coef!r} <= {addendum_coef!r}"
                 )
-        _check_range("hub_ratio_pinion", hub_ratio_pinion, 1.0, 10.0, "(r_root / r_bore)")
-        _check_range("hub_ratio_gear", hub_ratio_gear, 1.0, 10.0, "(r_root / r_bore, rim ratio for a ring)")
-        _check_range("shear_factor", shear_factor, 0.0, 1.0, "")
+        check_range("hub_ratio_pinion", hub_ratio_pinion, lo=1.0, hi=10.0, lo_closed=False, unit="(r_root / r_bore)")
+        check_range("hub_ratio_gear", hub_ratio_gear, lo=1.0, hi=10.0, lo_closed=False, unit="(r_root / r_bore, rim ratio for a ring)")
+        check_range("shear_factor", shear_factor, lo=0.0, hi=1.0, lo_closed=False, unit="")
 
         self.z_pinion = int(z_pinion)
         self.z_gear = int(z_gear)
@@ -942,7 +933,7 @@ def mesh_load_from_sun_torque(sun_mesh: SpurMesh, sun_torque, n_planets: int) ->
 # Default parameter set (paper Table 1)
 # --------------------------------------------------------------------------------------------
 
-_PARAMS_FILE = Path(__file__).resolve().parent.parent / "params" / "back_to_back.toml"
+_PARAMS_FILE = _params.path("back_to_back.toml")
 
 
 class BackToBackMeshes(NamedTuple):
@@ -961,8 +952,7 @@ def back_to_back_meshes(path: str | Path | None = None, **overrides) -> BackToBa
 
     ``overrides`` replace entries of the [mesh] table (e.g. ``face_width=0.025``).
     """
-    with open(path or _PARAMS_FILE, "rb") as fh:
-        data = tomllib.load(fh)
+    data = _params.read_toml(path or _PARAMS_FILE)
     g = data["gears"]
     mesh_kw = dict(data["mesh"])
     mesh_kw.update(overrides)

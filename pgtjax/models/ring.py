@@ -48,6 +48,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from pgtjax._validate import check_range
 from pgtjax.models import curved_beam as cb
 
 __all__ = [
@@ -71,20 +72,6 @@ __all__ = [
 ]
 
 
-def _check(name, value, lo, unit, strict=True, hi=None):
-    """Raise ValueError unless lo < value (or <=) [and value < hi]; skipped for traced values."""
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (jax.errors.ConcretizationTypeError, jax.errors.TracerArrayConversionError, TypeError):
-        return  # traced under jit/grad: cannot be checked here
-    ok = np.all(np.isfinite(arr)) and (np.all(arr > lo) if strict else np.all(arr >= lo))
-    if hi is not None:
-        ok = ok and np.all(arr < hi)
-    if not ok:
-        rel = ">" if strict else ">="
-        rng = f"{rel} {lo:g} {unit}".strip() + (f" and < {hi:g} {unit}" if hi is not None else "")
-        shown = arr.item() if arr.ndim == 0 else arr.tolist()
-        raise ValueError(f"`{name}` must be finite and {rng}, got {shown}")
 
 
 class RingParams(eqx.Module):
@@ -158,16 +145,16 @@ class RingParams(eqx.Module):
                 f"`support_nodes` must be distinct node indices in [0, {n_elements - 1}], "
                 f"got {support_nodes!r}"
             )
-        _check("radius", radius, 0.0, "m")
-        _check("thickness", thickness, 0.0, "m")
-        _check("face_width", face_width, 0.0, "m")
-        _check("youngs_modulus", youngs_modulus, 0.0, "Pa")
-        _check("density", density, 0.0, "kg/m^3")
-        _check("tooth_mass", tooth_mass, 0.0, "kg", strict=False)
-        _check("tooth_inertia", tooth_inertia, 0.0, "kg m^2", strict=False)
-        _check("k_support_radial", k_support_radial, 0.0, "N/m", strict=False)
-        _check("k_support_tangential", k_support_tangential, 0.0, "N/m", strict=False)
-        _check("k_support_torsional", k_support_torsional, 0.0, "N m/rad", strict=False)
+        check_range("radius", radius, lo=0.0, lo_closed=False, unit="m")
+        check_range("thickness", thickness, lo=0.0, lo_closed=False, unit="m")
+        check_range("face_width", face_width, lo=0.0, lo_closed=False, unit="m")
+        check_range("youngs_modulus", youngs_modulus, lo=0.0, lo_closed=False, unit="Pa")
+        check_range("density", density, lo=0.0, lo_closed=False, unit="kg/m^3")
+        check_range("tooth_mass", tooth_mass, lo=0.0, lo_closed=True, unit="kg")
+        check_range("tooth_inertia", tooth_inertia, lo=0.0, lo_closed=True, unit="kg m^2")
+        check_range("k_support_radial", k_support_radial, lo=0.0, lo_closed=True, unit="N/m")
+        check_range("k_support_tangential", k_support_tangential, lo=0.0, lo_closed=True, unit="N/m")
+        check_range("k_support_torsional", k_support_torsional, lo=0.0, lo_closed=True, unit="N m/rad")
         try:
             h, r = float(thickness), float(radius)
         except (jax.errors.ConcretizationTypeError, jax.errors.TracerArrayConversionError, TypeError):

@@ -67,6 +67,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import params as _params
+from .._validate import check_range
 from ..system import System
 from .ring import (
     RingParams,
@@ -100,33 +101,6 @@ OBSERVER_NAME = "contact1_radial"
 #: DOF name of the mid-node observer.
 MID_NAME = "mid_node_radial"
 _OBSERVER_MASS_RATIO = 1e-16  # m_y / k_y [s^2]
-
-
-def _concrete(value):
-    try:
-        return np.asarray(value, dtype=float)
-    except (jax.errors.ConcretizationTypeError, jax.errors.TracerArrayConversionError, TypeError):
-        return None  # traced under jit/grad/vmap: not checkable
-
-
-def _check(name, value, *, lo=None, hi=None, lo_strict=False, hi_strict=True, unit=""):
-    arr = _concrete(value)
-    if arr is None:
-        return
-    ok = bool(np.all(np.isfinite(arr)))
-    if lo is not None:
-        ok = ok and bool(np.all(arr > lo) if lo_strict else np.all(arr >= lo))
-    if hi is not None:
-        ok = ok and bool(np.all(arr < hi) if hi_strict else np.all(arr <= hi))
-    if not ok:
-        parts = []
-        if lo is not None:
-            parts.append(f"{'>' if lo_strict else '>='} {lo:g}")
-        if hi is not None:
-            parts.append(f"{'<' if hi_strict else '<='} {hi:g}")
-        rng = " and ".join(parts) + (f" {unit}" if unit else "")
-        shown = arr.item() if arr.ndim == 0 else arr.tolist()
-        raise ValueError(f"`{name}` must be finite{' and ' + rng if parts else ''}, got {shown}")
 
 
 class RingMovingLoadParams(eqx.Module):
@@ -184,20 +158,20 @@ class RingMovingLoadParams(eqx.Module):
             lm, lk = rayleigh_coefficients(0.02, 8590.0, 33000.0)
             rayleigh_mass = lm if rayleigh_mass is None else rayleigh_mass
             rayleigh_stiffness = lk if rayleigh_stiffness is None else rayleigh_stiffness
-        _check("carrier_speed", carrier_speed, lo=0.0, lo_strict=True, unit="rad/s")
-        _check("mean_force", mean_force, unit="N")
-        _check("force_amplitude", force_amplitude, lo=0.0, unit="N")
-        _check("mesh_frequency_ratio", mesh_frequency_ratio, lo=0.0)
-        _check("noise_intensity", noise_intensity, lo=0.0, unit="N sqrt(s)")
-        _check("pressure_angle", pressure_angle, lo=0.0, hi=math.pi / 2, unit="rad")
-        _check("initial_angle", initial_angle, unit="rad")
-        _check("rayleigh_mass", rayleigh_mass, lo=0.0, unit="1/s")
-        _check("rayleigh_stiffness", rayleigh_stiffness, lo=0.0, unit="s")
+        check_range("carrier_speed", carrier_speed, lo=0.0, lo_closed=False, unit="rad/s")
+        check_range("mean_force", mean_force, unit="N")
+        check_range("force_amplitude", force_amplitude, lo=0.0, unit="N")
+        check_range("mesh_frequency_ratio", mesh_frequency_ratio, lo=0.0)
+        check_range("noise_intensity", noise_intensity, lo=0.0, unit="N sqrt(s)")
+        check_range("pressure_angle", pressure_angle, lo=0.0, hi=math.pi / 2, hi_closed=False, unit="rad")
+        check_range("initial_angle", initial_angle, unit="rad")
+        check_range("rayleigh_mass", rayleigh_mass, lo=0.0, unit="1/s")
+        check_range("rayleigh_stiffness", rayleigh_stiffness, lo=0.0, unit="s")
         if np.shape(noise_intensity) not in ((), (n_loads,)):
             raise ValueError(f"`noise_intensity` must be a scalar or have shape ({n_loads},) (one per load), "
                              f"got {np.shape(noise_intensity)}")
         if modal_damping_ratio is not None:
-            _check("modal_damping_ratio", modal_damping_ratio, lo=0.0)
+            check_range("modal_damping_ratio", modal_damping_ratio, lo=0.0)
             if np.shape(modal_damping_ratio) not in ((), (ring.n_dof,)):
                 raise ValueError(f"`modal_damping_ratio` must be a scalar or have shape ({ring.n_dof},) "
                                  f"(one per ring mode), got {np.shape(modal_damping_ratio)}")
