@@ -39,6 +39,25 @@ def modal_analysis(system: System, t: float = 0.0, *, include_contacts: bool = T
     return modes_of(system.mass, k, system.dof_names)
 
 
+class SymmetricEigen(NamedTuple):
+    """Solution of ``K phi = lam M phi`` (K, M symmetric, M positive definite)."""
+
+    values: jax.Array  # (n,) eigenvalues lam = omega^2 (rad^2/s^2), ascending
+    shapes: jax.Array  # (n, n) mass-normalised modes phi (columns): phi^T M phi = I
+    factor: jax.Array  # (n, n) lower Cholesky factor L of M = L L^T
+    rotated: jax.Array  # (n, n) orthonormal eigenvectors y of L^-1 K L^-T (phi = L^-T y, M phi = L y)
+
+
+def symmetric_eigen(mass, stiffness) -> SymmetricEigen:
+    """The one generalized symmetric eigen-solve of the package: through the Cholesky factor of M,
+    ``L^-1 K L^-T y = lam y`` (symmetrized against rounding), ``phi = L^-T y``. Differentiable (``eigh``)."""
+    chol = jnp.linalg.cholesky(mass)
+    a = jax.scipy.linalg.solve_triangular(chol, stiffness, lower=True)
+    a = jax.scipy.linalg.solve_triangular(chol, a.T, lower=True).T
+    lam, y = jnp.linalg.eigh(0.5 * (a + a.T))
+    return SymmetricEigen(lam, jax.scipy.linalg.solve_triangular(chol.T, y, lower=False), chol, y)
+
+
 def modes_of(mass, stiffness, dof_names=None) -> Modes:
     """Modes of a mass and a stiffness matrix (see :func:`modal_analysis`)."""
     n = mass.shape[0]
@@ -47,11 +66,7 @@ def modes_of(mass, stiffness, dof_names=None) -> Modes:
         np.asarray(stiffness), np.asarray(stiffness).T, rtol=1e-10, atol=1e-12 * float(jnp.max(jnp.abs(stiffness)))
     )
     if symmetric:
-        chol = jnp.linalg.cholesky(mass)
-        a = jax.scipy.linalg.solve_triangular(chol, stiffness, lower=True)
-        a = jax.scipy.linalg.solve_triangular(chol, a.T, lower=True).T
-        lam, y = jnp.linalg.eigh(0.5 * (a + a.T))
-        shapes = jax.scipy.linalg.solve_triangular(chol.T, y, lower=False)
+        lam, shapes, _, _ = symmetric_eigen(mass, stiffness)
     else:
         lam_c, v = np.linalg.eig(np.linalg.solve(np.asarray(mass), np.asarray(stiffness)))
         order = np.argsort(lam_c.real)

@@ -20,12 +20,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .eigenbasis import eigen_initial_state, eigen_physical, eigen_propagator, eigen_sample_step
 from ._failure import SolverError, raise_if_nonfinite
 from ._loop import saved_scan
+from .eigenbasis import eigen_initial_state, eigen_physical, eigen_propagator, eigen_sample_step
 from .newmark import AbstractIntegrator, initial_sample_state, resolve_integrator, sample_step, snapshot
 from .results import MonteCarloResult
 from .system import Observables, System, check_count, initial_state, validate_system, validate_time_grid
+
 
 def _progress_bar(total: int, enabled: bool):
     """A tqdm bar, or None. Imported only when asked for: ``tqdm.auto`` warns at import time in a Jupyter

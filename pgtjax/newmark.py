@@ -39,6 +39,7 @@ import jax.numpy as jnp
 
 from .system import System, at_time
 
+
 def effective_stiffness(mass, damping, stiffness, h):
     """``K_eff = K + (2/h) C + (4/h^2) M``: the matrix solved at every step (module docstring)."""
     return stiffness + (2.0 / h) * damping + (4.0 / h**2) * mass

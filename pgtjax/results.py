@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -73,6 +74,15 @@ class MomentResult(_Labelled):
     criterion: str = eqx.field(static=True)
     observable_names: tuple[str, ...] = eqx.field(static=True, default=())
 
+    def contact_loss_probability(self, clearance) -> jax.Array:
+        """P(|delta| < b) of each contact at each saved time under SL's Gaussian deflection, (n_times, nc), for
+        any criterion; ``clearance``: the half-clearances b (m), or the :class:`pgtjax.System` solved.
+        (Monte Carlo's counterpart is the field of the same name.)"""
+        if hasattr(clearance, "contact_clearance"):
+            clearance = clearance.contact_clearance()
+        b = jnp.broadcast_to(jnp.asarray(clearance, jnp.float64), (len(self.contact_names),))
+        return _gaussian_gap_probability(self.mean_delta, self.std_delta, b[None, :])
+
     @classmethod
     def from_saved(cls, system, times, saved, *, criterion, observables=None):
         n, nc = system.n_dof, system.n_contacts
@@ -100,6 +110,27 @@ class MomentResult(_Labelled):
             criterion=criterion,
             observable_names=() if observables is None else observables.names,
         )
+
+
+class TimeAverage(NamedTuple):
+    """Time averages over a window of Monte Carlo statistics, with batch-means standard errors."""
+
+    mean: np.ndarray  # (k,) time average of the sample mean
+    mean_se: np.ndarray  # (k,) its standard error
+    std: np.ndarray  # (k,) time average of the sample standard deviation
+    std_se: np.ndarray  # (k,) its standard error
+    n_times: int  # saved times in the window
+
+
+def _gaussian_gap_probability(mean, std, clearance):
+    """P(|delta| < b) for delta ~ N(mean, std^2), elementwise; a deterministic delta (std = 0) gives 0 or 1."""
+    from jax.scipy.special import ndtr
+
+    positive = std > 0.0
+    safe = jnp.where(positive, std, 1.0)
+    inside = (jnp.abs(mean) < clearance).astype(mean.dtype)
+    prob = ndtr((clearance - mean) / safe) - ndtr((-clearance - mean) / safe)
+    return jnp.where(positive, prob, inside)
 
 
 class MonteCarloResult(_Labelled):
@@ -140,6 +171,39 @@ class MonteCarloResult(_Labelled):
         sd = getattr(self, fields[what])
         n = self.n_samples
         return sd / np.sqrt(n), sd / np.sqrt(2.0 * (n - 1))
+
+    def time_average(self, what: str = "u", *, t_start: float | None = None, t_end: float | None = None,
+                     n_batches: int = 10) -> TimeAverage:
+        """Time averages of ``mean_<what>`` and ``std_<what>`` (``what`` as in :meth:`standard_error`) over the
+        saved times in ``[t_start, t_end]`` (s; default: the whole run) of a statistically stationary response,
+        with batch-means standard errors: the window is cut into ``n_batches`` consecutive batches of saved
+        times and the error is the standard deviation of the batch averages over sqrt(n_batches). The saved
+        statistics are correlated in time (the same samples), which the batches account for when each batch
+        is longer than the response's correlation time."""
+        fields = {"u": ("mean_u", "std_u"), "v": ("mean_v", "std_v"), "delta": ("mean_delta", "std_delta"),
+                  "obs": ("mean_obs", "std_obs"), "force": ("force_mean", "force_std")}
+        if what not in fields:
+            raise ValueError(f"`what` must be one of {', '.join(fields)}, got {what!r}")
+        if isinstance(n_batches, bool) or not isinstance(n_batches, int | np.integer) or n_batches < 2:
+            raise ValueError(f"`n_batches` must be an integer >= 2, got {n_batches!r}")
+        times = np.asarray(self.times)
+        lo = times[0] if t_start is None else float(t_start)
+        hi = times[-1] if t_end is None else float(t_end)
+        if not (np.isfinite(lo) and np.isfinite(hi) and times[0] <= lo <= hi <= times[-1]):
+            raise ValueError(f"the window `t_start`..`t_end` must lie in the run, [{times[0]:g}, {times[-1]:g}] s; "
+                             f"got [{lo:g}, {hi:g}]")
+        window = (times >= lo) & (times <= hi)
+        count = int(window.sum())
+        if count < 2 * n_batches:
+            raise ValueError(f"the window holds {count} saved times: at least 2 per batch ({2 * n_batches}) are "
+                             "needed; widen it, save more often (`save_every`), or lower `n_batches`")
+        out = []
+        for name in fields[what]:
+            series = np.asarray(getattr(self, name))[window]
+            usable = (count // n_batches) * n_batches  # whole batches, from the window's start
+            batches = series[:usable].reshape(n_batches, -1, series.shape[1]).mean(axis=1)
+            out += [series.mean(axis=0), batches.std(axis=0, ddof=1) / np.sqrt(n_batches)]
+        return TimeAverage(out[0], out[1], out[2], out[3], count)
 
 
 class Trajectory(_Labelled):

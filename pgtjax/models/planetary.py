@@ -58,6 +58,7 @@ import numpy as np
 
 from .. import params as _params
 from ..contact import Backlash
+from ..modal import symmetric_eigen
 from ..system import Contacts, System
 from .ring import RingParams, ring_dof_names, ring_interpolation, ring_matrices, ring_nodal_inverse
 
@@ -488,13 +489,10 @@ def _damping(p: PlanetaryParams, lay: Layout, mass, k_mean):
     if p.damping.model == "rayleigh":
         c1 = p.damping.alpha * m1 + p.damping.beta * k1
     else:
-        chol = jnp.linalg.cholesky(m1)
-        a = jax.scipy.linalg.solve_triangular(chol, k1, lower=True)
-        a = jax.scipy.linalg.solve_triangular(chol, a.T, lower=True).T
-        lam, y = jnp.linalg.eigh(0.5 * (a + a.T))
-        omega = jnp.sqrt(jnp.maximum(lam, 0.0))
+        eig = symmetric_eigen(m1, k1)
+        omega = jnp.sqrt(jnp.maximum(eig.values, 0.0))
         # C = M Phi diag(2 zeta omega) Phi^T M with Phi = L^-T y (mass-normalised)
-        left = chol @ y
+        left = eig.factor @ eig.rotated
         c1 = (left * (2.0 * p.damping.modal_ratio * omega)[None, :]) @ left.T
     c = jnp.zeros((lay.n_dof, lay.n_dof)).at[:mech, :mech].set(c1)
     tv = p.wind.time_constant()

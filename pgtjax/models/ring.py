@@ -49,6 +49,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from pgtjax._validate import check_range
+from pgtjax.modal import symmetric_eigen
 from pgtjax.models import curved_beam as cb
 
 __all__ = [
@@ -368,12 +369,7 @@ def natural_frequencies(M, K):
     round-off eigenvalues of rigid-body modes are clipped to 0) and ``X`` (n, n) columns normalised
     to ``X^T M X = I``.
     """
-    c = jnp.linalg.cholesky(M)
-    ci_k = jax.scipy.linalg.solve_triangular(c, K, lower=True)
-    a = jax.scipy.linalg.solve_triangular(c, ci_k.T, lower=True)
-    a = 0.5 * (a + a.T)
-    lam, y = jnp.linalg.eigh(a)
-    x = jax.scipy.linalg.solve_triangular(c.T, y, lower=False)
+    lam, x, _, _ = symmetric_eigen(M, K)
     pos = lam > 0.0
     w = jnp.where(pos, jnp.sqrt(jnp.where(pos, lam, 1.0)), 0.0)  # NaN-free gradient at lam <= 0
     return w / (2.0 * math.pi), x

@@ -68,6 +68,7 @@ import numpy as np
 
 from .. import params as _params
 from .._validate import check_range
+from ..modal import symmetric_eigen
 from ..system import System
 from .ring import (
     RingParams,
@@ -332,11 +333,8 @@ class _ObservedStiffness(eqx.Module):
 
 def _modes(M, K):
     """M-orthonormal modes (columns) and angular frequencies [rad/s], ascending."""
-    c = jnp.linalg.cholesky(M)
-    a = jax.scipy.linalg.solve_triangular(c, K, lower=True)
-    a = jax.scipy.linalg.solve_triangular(c, a.T, lower=True).T
-    lam, y = jnp.linalg.eigh(0.5 * (a + a.T))
-    return jax.scipy.linalg.solve_triangular(c.T, y, lower=False), jnp.sqrt(jnp.maximum(lam, 0.0))
+    eig = symmetric_eigen(M, K)
+    return eig.shapes, jnp.sqrt(jnp.maximum(eig.values, 0.0))
 
 
 def _damping_matrix(p: RingMovingLoadParams, M, K):
