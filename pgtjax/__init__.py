@@ -8,8 +8,11 @@ Studies, plots and the CLI sit on top.
 
 from . import _config  # noqa: F401  (enables float64 before anything else)
 from ._failure import SolverError as SolverError
+from .contact import AbstractCriterion as AbstractCriterion
 from .contact import Backlash as Backlash
 from .contact import ContactLaw as ContactLaw
+from .contact import EnergyCriterion as EnergyCriterion
+from .contact import ForceCriterion as ForceCriterion
 from .contact import Linearization as Linearization
 from .deterministic import simulate as simulate
 from .deterministic import static_equilibrium as static_equilibrium

@@ -57,9 +57,6 @@ _SQRT2 = 1.4142135623730951
 _INV_SQRT_2PI = 0.3989422804014327
 _Z_SATURATION = 40.0
 
-CRITERIA = ("force", "energy", "energy_origin")
-
-
 class Linearization(NamedTuple):
     """Equivalent linear contact ``f ~ k_e (delta - mu) + f_0`` (N/m, N)."""
 
@@ -67,9 +64,63 @@ class Linearization(NamedTuple):
     f_0: jnp.ndarray
 
 
-def check_criterion(criterion: str) -> None:
-    if criterion not in CRITERIA:
-        raise ValueError(f"`criterion` must be one of {CRITERIA}, got {criterion!r}")
+class AbstractCriterion(eqx.Module):
+    """Strategy: how statistical linearization picks ``(k_e, f_0)`` from the Gaussian expectations of a
+    contact law. A law supplies ``E[f]``, ``E[f']`` and, if :attr:`potential_reference` is not None, the
+    excess potential ``(E[P] - P_ref) / sigma^2`` with ``P_ref = P(mu)`` (``"mean"``) or 0 (``"origin"``)."""
+
+    name: ClassVar[str]
+    potential_reference: ClassVar[str | None]
+
+    @abc.abstractmethod
+    def coefficients(self, mean_force, mean_stiffness, excess_potential) -> Linearization:
+        """``(k_e, f_0)`` from ``E[f]`` (N), ``E[f']`` (N/m) and the excess potential ratio (N/m, or None)."""
+
+
+class ForceCriterion(AbstractCriterion):
+    """Minimum mean-square force error, thesis Eqs. 3.35-3.42: ``k_e = E[f']``, ``f_0 = E[f]``."""
+
+    name: ClassVar[str] = "force"
+    potential_reference: ClassVar[str | None] = None
+
+    def coefficients(self, mean_force, mean_stiffness, excess_potential) -> Linearization:
+        return Linearization(mean_stiffness, mean_force)
+
+
+class EnergyCriterion(AbstractCriterion):
+    """Minimum mean-square error of the fluctuating part's potential energy (ch. 4, corrected; module
+    docstring): ``k_e = 2/3 (E[f'] + (E[P] - P(mu)) / sigma^2)``, ``f_0 = E[f]``."""
+
+    name: ClassVar[str] = "energy"
+    potential_reference: ClassVar[str | None] = "mean"
+
+    def coefficients(self, mean_force, mean_stiffness, excess_potential) -> Linearization:
+        return Linearization(2.0 / 3.0 * (mean_stiffness + excess_potential), mean_force)
+
+
+class EnergyOriginCriterion(EnergyCriterion):
+    """Eq. 4.43 as printed, the potential measured about the origin: for reproducing the thesis only. Under a
+    static load it overestimates ``k_e`` by ``(mu - b)^2 / (3 sigma^2)`` relative, and its fixed point can
+    settle on a spurious branch with ``k_e`` many times the mesh stiffness."""
+
+    name: ClassVar[str] = "energy_origin"
+    potential_reference: ClassVar[str | None] = "origin"
+
+
+CRITERIA = {c.name: c for c in (ForceCriterion, EnergyCriterion, EnergyOriginCriterion)}
+
+
+def as_criterion(criterion) -> AbstractCriterion:
+    """A criterion object from an object or its name (``"force"``, ``"energy"``, ``"energy_origin"``)."""
+    if isinstance(criterion, AbstractCriterion):
+        return criterion
+    if isinstance(criterion, str) and criterion in CRITERIA:
+        return CRITERIA[criterion]()
+    raise ValueError(f"`criterion` must be one of {tuple(CRITERIA)} or a pgtjax criterion object, got {criterion!r}")
+
+
+def check_criterion(criterion) -> None:
+    as_criterion(criterion)
 
 
 def _cdf(z):
@@ -242,18 +293,18 @@ class ContactLaw(eqx.Module):
         ``k_e = E[f']`` (force criterion) or ``2/3 (E[f'] + (E[P] - P(mu)) / sigma^2)`` (energy), by quadrature;
         ``sigma = 0`` gives ``k_e = f'(mu)``. The energy form's ``E[P] - P(mu)`` is a difference: it keeps
         about ``eps (mu / sigma)^2`` relative accuracy, ample for SL's sigma but not for sigma -> 0."""
-        check_criterion(criterion)
+        criterion = as_criterion(criterion)
         f_0 = self.gaussian_expectation(self.force, mu, sigma, inputs, b)
         k_force = self.gaussian_expectation(self.stiffness, mu, sigma, inputs, b)
-        if criterion == "force":
-            return Linearization(k_force, f_0)
+        if criterion.potential_reference is None:
+            return criterion.coefficients(f_0, k_force, None)
         pot = self.potential
         excess = self.gaussian_expectation(pot, mu, sigma, inputs, b)
-        if criterion == "energy":
+        if criterion.potential_reference == "mean":
             excess = excess - pot(jnp.asarray(mu, jnp.float64), inputs, b)
         safe = jnp.where(sigma > 0.0, sigma, 1.0)
-        k_e = jnp.where(sigma > 0.0, 2.0 / 3.0 * (k_force + excess / safe**2), k_force)
-        return Linearization(k_e, f_0)
+        lin = criterion.coefficients(f_0, k_force, excess / safe**2)
+        return Linearization(jnp.where(sigma > 0.0, lin.k_e, k_force), lin.f_0)
 
     def force_moments(self, mu, sigma, inputs, b) -> tuple[jnp.ndarray, jnp.ndarray]:
         """Mean and standard deviation of f(delta) for delta ~ N(mu, sigma^2) (default: quadrature)."""
@@ -304,7 +355,7 @@ class Backlash(ContactLaw):
         return 0.5 * k * (jnp.maximum(delta - b, 0.0) ** 2 + jnp.maximum(-b - delta, 0.0) ** 2)
 
     def linearize(self, mu, sigma, k, b, criterion: str = "force") -> Linearization:
-        check_criterion(criterion)
+        criterion = as_criterion(criterion)
         # distances into the upper and lower contact flanks, stacked so that each special function is
         # evaluated once for both flanks (fewer, larger operations)
         upper, lower, sigma = jnp.broadcast_arrays(mu - b, -b - mu, sigma)
@@ -312,15 +363,15 @@ class Backlash(ContactLaw):
         # per flank: P(contact), E[(flank deflection)+] and, for the energy criteria, the excess second
         # moment ((E[P] - P(mu)) / sigma^2 cancellation-free, or E[P] / sigma^2 about the origin for
         # "energy_origin": Eq. 4.43 as printed, which grows like (mu - b)^2 / sigma^2 in permanent contact)
-        stats = _flank_statistics(criterion, offset, sigma)
+        stats = _flank_statistics(criterion.name, offset, sigma)
         cdf, mean_part = stats[0], stats[1]
         contact_probability = cdf[0] + cdf[1]  # Eq. 3.39 / k
         f_0 = k * (mean_part[0] - mean_part[1])
         k_force = k * contact_probability
-        if criterion == "force":
-            return Linearization(k_force, f_0)
+        if criterion.potential_reference is None:
+            return criterion.coefficients(f_0, k_force, None)
         excess = stats[2]
-        return Linearization(2.0 / 3.0 * (k_force + 0.5 * k * (excess[0] + excess[1])), f_0)
+        return criterion.coefficients(f_0, k_force, 0.5 * k * (excess[0] + excess[1]))
 
     def affine_piece(self, delta, k, b):
         # 0: inside the backlash (f = 0), 1: upper flank (k (delta - b)), 2: lower flank (k (delta + b))

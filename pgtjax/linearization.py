@@ -39,7 +39,7 @@ from jax.ad_checkpoint import checkpoint_name
 from ._failure import SolverError, error_if_nonfinite, is_concrete, raise_if_nonfinite
 from ._loop import saved_scan
 from ._numerics import safe_sqrt
-from .contact import Linearization, check_criterion
+from .contact import AbstractCriterion, Linearization, as_criterion
 from .newmark import (
     AbstractIntegrator,
     ConstantPropagator,
@@ -552,7 +552,7 @@ def solve_moments(
     initial_displacement=None,
     initial_velocity=None,
     initial_covariance=None,
-    criterion: str = "force",
+    criterion: str | AbstractCriterion = "force",
     noise_scheme: str | None = None,
     integrator: AbstractIntegrator | None = None,
     save_every: int = 1,
@@ -571,7 +571,9 @@ def solve_moments(
             of ``save_every``. Results are saved at ``t0 + k * save_every * dt``, ``k = 0..n_steps/save_every``.
         initial_displacement, initial_velocity: mean initial state (default 0).
         initial_covariance: (2n, 2n) covariance of ``(u, v)`` at ``t0`` (default 0: deterministic start).
-        criterion: ``"force"`` (Eqs. 3.37-3.42), ``"energy"`` (ch. 4, corrected) or ``"energy_origin"``.
+        criterion: the SL criterion, an object or its name: :class:`pgtjax.ForceCriterion` / ``"force"``
+            (Eqs. 3.37-3.42), :class:`pgtjax.EnergyCriterion` / ``"energy"`` (ch. 4, corrected) or
+            ``"energy_origin"`` (Eq. 4.43 as printed, for comparison only).
         integrator: the time discretization, :class:`pgtjax.Newmark` (default: exact stationary covariance)
             or :class:`pgtjax.NewmarkBridge` (the documents' scheme).
         noise_scheme: shorthand for ``integrator``: ``"trapezoidal"`` (Newmark) or ``"newmark"`` (NewmarkBridge).
@@ -591,7 +593,7 @@ def solve_moments(
     """
     validate_system(system, t0)
     n_steps, save_every = validate_time_grid(dt, n_steps, save_every)
-    check_criterion(criterion)
+    criterion = as_criterion(criterion)
     integrator = resolve_integrator(integrator, noise_scheme)
     if isinstance(rtol, bool) or not isinstance(rtol, numbers.Real) or not 0.0 < rtol < 1.0:
         raise ValueError(f"`rtol` must be a number in (0, 1), got {rtol!r}")
@@ -672,4 +674,4 @@ def _solve_moments_jit(
     _, saved = saved_scan(step, record, carry, first, n_blocks=n_blocks, save_every=save_every,
                           remat_policy=policy)
     times = t0 + dt * save_every * jnp.arange(n_blocks + 1, dtype=jnp.float64)
-    return MomentResult.from_saved(system, times, saved, criterion=criterion, observables=observables)
+    return MomentResult.from_saved(system, times, saved, criterion=criterion.name, observables=observables)

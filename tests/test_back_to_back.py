@@ -4,6 +4,9 @@ import argparse
 import dataclasses
 import json
 import math
+import tomllib
+from pathlib import Path
+from types import SimpleNamespace
 
 import jax
 import jax.numpy as jnp
@@ -11,7 +14,7 @@ import numpy as np
 import pytest
 
 import pgtjax as pg
-from pgtjax import cli_back_to_back
+from pgtjax.cli import back_to_back as cli_back_to_back
 from pgtjax.models import back_to_back as bb
 from pgtjax.models import mesh_stiffness as ms
 from pgtjax.studies import back_to_back as study
@@ -63,7 +66,8 @@ def test_stationary_response_repeats_at_the_mesh_period(stationary):
 
 
 def test_ring_acceleration_keeps_only_multiples_of_three_mesh_harmonics(stationary):
-    """Three equally spaced planets with Z_r/3, Z_s/3 not integer: harmonics 1, 2 cancel in the ring torque."""
+    """Three equally spaced planets with Z_r/3, Z_s/3 not integer: harmonics 1, 2 cancel in the ring
+    torque."""
     acc = stationary.acceleration[:, bb.DOF_NAMES.index("ring_T")]
     a = study.harmonic_amplitudes(stationary, acc, orders=(1, 2, 3), last_s=0.144)
     assert a[1] < 1e-2 * a[3] and a[2] < 1e-2 * a[3]
@@ -299,6 +303,39 @@ def test_stft_of_a_sinusoid():
     r = study.ridge(f, a, np.full(len(ft), 400.0))
     assert np.allclose(r, f0, rtol=2e-3)
     assert np.allclose(a.max(axis=1), 2.5, rtol=0.02)
+
+
+def test_run_study_without_t_end_reads_the_run_up_length_of_the_embedded_file(monkeypatch, params):
+    """Regression: with ``t_end=None`` the run-up length is the ``[run_up] t_end_s`` of ``back_to_back.toml``,
+    read through the shared parameter reader (the study called a removed private reader: AttributeError). The
+    integrations are stubbed out: only the lengths handed to them are checked."""
+
+    class Stop(Exception):
+        pass
+
+    calls = []
+
+    def fake_run_regime(p, name, *, t_end, dt, save_every):
+        calls.append((name, t_end))
+        if name == "run_up":
+            raise Stop
+        return SimpleNamespace(wall_s=0.0)
+
+    monkeypatch.setattr(study, "run_regime", fake_run_regime)
+    with pytest.raises(Stop):
+        study.run_study(params, stationary_t_end=0.2, progress=False)
+    with open(Path(pg.__file__).parent / "params" / "back_to_back.toml", "rb") as fh:
+        t_end = tomllib.load(fh)["run_up"]["t_end_s"]
+    assert calls == [("stationary", 0.2), ("run_up", t_end)] and isinstance(calls[-1][1], float)
+
+
+def test_study_load_params_applies_the_operating_point_and_face_width(params):
+    p = study.load_params(torque=200.0, speed_end_rpm=1200.0, ramp_duration=2.0, face_width=0.025)
+    assert float(p.sun_torque) == 200.0 and float(p.speed_end) == 1200.0 * bb.RPM
+    assert float(p.ramp_duration) == 2.0 and study.run_up_end(p) == float(params.ramp_start) + 2.0
+    assert float(p.speed_start) == float(params.speed_start)
+    assert float(p.torque_end) == float(params.torque_end)
+    assert float(p.sun_planet.face_width) == float(p.ring_planet.face_width) == 0.025
 
 
 def test_cli_modal_json_and_help(capsys):

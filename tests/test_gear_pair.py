@@ -1,5 +1,9 @@
 """Gear-pair builder (thesis Eqs. 4.5-4.18) and the ch. 4 study at small sizes."""
 
+import runpy
+import sys
+from importlib import metadata
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -94,3 +98,14 @@ def test_outputs_reload_and_cli(tmp_path, small_study):
     assert exc.value.code == 0
     assert cli.main(["gear-pair-modal", "--json"]) == 0
     assert cli.main(["gear-pair", "--params", str(tmp_path / "missing.toml"), "--samples", "0"]) != 0
+
+
+def test_cli_entry_points(monkeypatch, capsys):
+    """``python3 -m pgtjax.cli`` and the ``pgtjax`` console script both run :func:`pgtjax.cli.main`."""
+    monkeypatch.setattr(sys, "argv", ["pgtjax", "gear-pair-modal"])
+    with pytest.raises(SystemExit) as exc:
+        runpy.run_module("pgtjax.cli", run_name="__main__")
+    assert exc.value.code == 0
+    assert capsys.readouterr().out.startswith(f"{'mode':>4s} {'f (Hz)':>12s}  shape (y1, y2, z)\n")
+    scripts = [e for e in metadata.entry_points(group="console_scripts") if e.name == "pgtjax"]
+    assert [e.value for e in scripts] == ["pgtjax.cli:main"] and scripts[0].load() is cli.main

@@ -1,4 +1,5 @@
-"""Argument types shared by the command-line modules (argparse ``type=`` callables with clear messages)."""
+"""Argument types shared by the command-line modules (argparse ``type=`` callables with clear messages)
+and the parsing of comma-separated option values."""
 
 from __future__ import annotations
 
@@ -43,3 +44,8 @@ def csv_ints(text: str) -> tuple[int, ...]:
         return tuple(int(x) for x in text.split(",") if x.strip())
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}") from None
+
+
+def csv_names(text: str) -> tuple[str, ...]:
+    """``"force, energy"`` -> ``("force", "energy")`` (blank entries dropped)."""
+    return tuple(c.strip() for c in text.split(",") if c.strip())

@@ -1,6 +1,8 @@
-"""CLI of the back-to-back bench study (paper seeds/002): ``pgtjax back-to-back`` and ``pgtjax back-to-back-modal``.
+"""CLI of the back-to-back bench study (paper seeds/002): ``pgtjax back-to-back`` and
+``pgtjax back-to-back-modal``.
 
-``register(subparsers)`` adds both subcommands to the ``pgtjax`` parser (called from :mod:`pgtjax.cli`).
+``register(subparsers)`` adds both subcommands to the ``pgtjax`` parser (called from :mod:`pgtjax.cli`); the
+work is done by :mod:`pgtjax.studies.back_to_back`.
 """
 
 from __future__ import annotations
@@ -10,64 +12,33 @@ import json
 import time
 from pathlib import Path
 
-from ._cli_types import nonneg_float as _nonnegative_float, positive_float as _positive_float
-from ._cli_types import positive_int as _positive_int
-
-
-
-
-
-
+from ._types import nonneg_float as _nonnegative_float
+from ._types import positive_float as _positive_float
+from ._types import positive_int as _positive_int
 
 
 def _load(args):
-    from .models import back_to_back as bb
+    from ..studies import back_to_back as study
 
-    overrides = {}
-    rpm = bb.RPM
-    for flag, name, scale in (
-        ("speed_start_rpm", "speed_start", rpm),
-        ("speed_end_rpm", "speed_end", rpm),
-        ("ramp_start", "ramp_start", 1.0),
-        ("ramp_duration", "ramp_duration", 1.0),
-        ("torque", "sun_torque", 1.0),
-        ("torque_end", "torque_end", 1.0),
-    ):
-        value = getattr(args, flag, None)
-        if value is not None:
-            overrides[name] = value * scale
-    params = bb.load_params(args.params, **overrides)
-    if getattr(args, "face_width", None) is not None:
-        params = params.replace(
-            sun_planet=_with_width(params.sun_planet, args.face_width),
-            ring_planet=_with_width(params.ring_planet, args.face_width),
-        )
-    return params
-
-
-def _with_width(mesh, width):
-    import dataclasses
-
-    import jax.numpy as jnp
-
-    return dataclasses.replace(mesh, face_width=jnp.asarray(width, jnp.float64))
+    return study.load_params(
+        args.params,
+        speed_start_rpm=getattr(args, "speed_start_rpm", None),
+        speed_end_rpm=getattr(args, "speed_end_rpm", None),
+        ramp_start=getattr(args, "ramp_start", None),
+        ramp_duration=getattr(args, "ramp_duration", None),
+        torque=getattr(args, "torque", None),
+        torque_end=getattr(args, "torque_end", None),
+        face_width=getattr(args, "face_width", None),
+    )
 
 
 def _run(args) -> int:
-    from .models import back_to_back as bb
-    from .studies import back_to_back as study
+    from ..studies import back_to_back as study
 
     params = _load(args)
     out = args.out or Path("pgtjax-output") / "back_to_back"
-    t_end = args.t_end
-    if t_end is None:
-        t_end = float(params.ramp_start + params.ramp_duration)
-    print(
-        f"pgtjax back-to-back bench (paper seeds/002): 12 DOF, 12 Hertzian meshes, dt = {args.dt:g} s; "
-        f"run-up {float(params.speed_start) / bb.RPM:.0f} -> {float(params.speed_end) / bb.RPM:.0f} rpm, "
-        f"torque {float(params.sun_torque):g} -> {float(params.torque_end):g} N m, {t_end:g} s",
-        flush=True,
-    )
+    t_end = study.run_up_end(params) if args.t_end is None else args.t_end
+    print(study.format_header(params, dt=args.dt, t_end=t_end), flush=True)
     start = time.perf_counter()
     result = study.run_study(
         params,
@@ -81,12 +52,7 @@ def _run(args) -> int:
     print("  writing results and figures ...", flush=True)
     written = study.write_outputs(result, out)
     print(study.format_hertz(result.hertz))
-    for name, checks in result.ridges.items():
-        for label, c in checks.items():
-            print(
-                f"STFT ridge {name:10s} {label:36s} order {c['order']}: max |ridge - k Z_r f_c| / (k Z_r f_c) = "
-                f"{100 * c['max_relative_error']:.2f} %"
-            )
+    print(study.format_ridges(result.ridges))
     print(
         f"done in {time.perf_counter() - start:.1f} s; {len(written)} files written to {Path(out).resolve()}"
     )
@@ -94,13 +60,10 @@ def _run(args) -> int:
 
 
 def _modal(args) -> int:
-    from .studies import back_to_back as study
+    from ..studies import back_to_back as study
 
     rows = study.modal_table(_load(args), motor=args.motor)
-    if args.json:
-        print(json.dumps(rows, indent=2))
-    else:
-        print(study.format_modal_table(rows))
+    print(json.dumps(rows, indent=2) if args.json else study.format_modal_table(rows))
     return 0
 
 

@@ -1,5 +1,6 @@
 """Ring-gear subcommands of the ``pgtjax`` CLI (thesis ch. 5-6): ``ring-modal``, ``ring-free-vibration``,
-``ring-moving-load``. :func:`register` adds them to the subparsers of :func:`pgtjax.cli.build_parser`.
+``ring-moving-load``. :func:`register` adds them to the subparsers of :func:`pgtjax.cli.build_parser`; the
+work is done by :mod:`pgtjax.studies.ring_free_vibration` and :mod:`pgtjax.studies.ring_moving_load`.
 
 Like the rest of the CLI, a bad input (a ``ValueError`` with a clear message) prints ``pgtjax: error: ...`` on
 stderr and returns exit code 2; the handlers do that themselves so that they behave the same whichever
@@ -15,16 +16,10 @@ import sys
 import time
 from pathlib import Path
 
-from ._cli_types import csv_floats as _csv_floats, csv_ints as _csv_ints, nonneg_int as _nonneg_int
-from ._cli_types import positive_float as _positive_float
-
-
-
-
-
-
-
-
+from ._types import csv_floats as _csv_floats
+from ._types import csv_ints as _csv_ints
+from ._types import nonneg_int as _nonneg_int
+from ._types import positive_float as _positive_float
 
 
 def _clear_errors(func):
@@ -42,9 +37,9 @@ def _clear_errors(func):
 
 
 def _load(args):
-    from .models import ring_moving_load as rml
+    from ..studies import ring_moving_load as study
 
-    return rml.load_params(args.params, n_elements=args.n_elements, support=args.support)
+    return study.load_params(args.params, n_elements=args.n_elements, support=args.support)
 
 
 # --------------------------------------------------------------------------------------------- ring-modal
@@ -52,28 +47,11 @@ def _load(args):
 
 @_clear_errors
 def _run_modal(args) -> int:
-    import numpy as np
-
-    from .models.ring import nodal_diameter, ring_natural_frequencies
+    from ..studies import ring_moving_load as study
 
     p = _load(args)
-    f, x = ring_natural_frequencies(p.ring)
-    f, x = np.asarray(f), np.asarray(x)
-    k = min(args.modes, f.size) if args.modes else f.size
-    rows = [dict(mode=i + 1, frequency_hz=float(f[i]), angular_frequency_rad_s=float(2 * np.pi * f[i]),
-                 wave_number=nodal_diameter(x[:, i])) for i in range(k)]
-    if args.json:
-        print(json.dumps(dict(n_elements=p.ring.n_elements, support_nodes=list(p.ring.support_nodes),
-                              modes=rows), indent=2))
-    else:
-        r = p.ring
-        print(f"ring R = {float(r.radius) * 1e3:.2f} mm, h = {float(r.thickness) * 1e3:.2f} mm, "
-              f"b = {float(r.face_width) * 1e3:.1f} mm, L = {r.n_elements} elements, "
-              f"supports at nodes {list(r.support_nodes)}")
-        print(f"{'mode':>4s} {'f (Hz)':>12s} {'omega (rad/s)':>14s} {'n':>3s}")
-        for row in rows:
-            print(f"{row['mode']:4d} {row['frequency_hz']:12.2f} {row['angular_frequency_rad_s']:14.1f} "
-                  f"{row['wave_number']:3d}")
+    table = study.modal_table(p, args.modes)
+    print(json.dumps(table, indent=2) if args.json else study.format_modal_table(p, table))
     return 0
 
 
@@ -82,14 +60,11 @@ def _run_modal(args) -> int:
 
 @_clear_errors
 def _run_free_vibration(args) -> int:
-    from .studies import ring_free_vibration as fv
+    from ..studies import ring_free_vibration as fv
 
     table = fv.ring_gear_free_vibration_table(pitch_radius=args.pitch_radius, face_width=args.face_width,
                                               n_elements=args.n_elements)
-    if args.json:
-        print(json.dumps({k: [float(v) for v in vals] for k, vals in table.items()}, indent=2))
-    else:
-        print(fv.format_table(table))
+    print(json.dumps(fv.json_table(table), indent=2) if args.json else fv.format_table(table))
     if args.out is not None:
         written = fv.write_outputs(args.out, pitch_radius=args.pitch_radius, face_width=args.face_width,
                                    n_elements=args.n_elements)
@@ -102,37 +77,23 @@ def _run_free_vibration(args) -> int:
 
 @_clear_errors
 def _run_moving_load(args) -> int:
-    import numpy as np
-
-    from .studies import ring_moving_load as study
+    from ..studies import ring_moving_load as study
 
     p = _load(args)
-    if args.full:
-        args.revolutions, args.sweep_speeds, args.samples = 1.0, 190, max(args.samples, 1000)
-    if args.revolutions <= 0:
-        raise ValueError(f"`--revolutions` must be > 0, got {args.revolutions}")
-    n_modes = None if args.modes == 0 else args.modes
-    if n_modes is not None and n_modes > p.ring.n_dof:
-        raise ValueError(f"`--modes` must be <= 3 x n_elements = {p.ring.n_dof} (0 = full model), got {n_modes}")
+    settings = study.resolve_settings(p, revolutions=args.revolutions, n_modes=args.modes,
+                                      n_samples=args.samples, n_sweep=args.sweep_speeds,
+                                      sweep_min=args.sweep_min, sweep_max=args.sweep_max, full=args.full)
     out = args.out or Path("pgtjax-output") / "ring_moving_load"
-    sweep_speeds = (np.linspace(args.sweep_min, args.sweep_max, args.sweep_speeds)
-                    if args.sweep_speeds else np.array([]))
-    print(f"pgtjax ring under moving loads (thesis ch. 6): L = {p.ring.n_elements}, N = {p.n_loads} loads, "
-          f"{'full model' if n_modes is None else f'{n_modes} modes'}, dt = {args.dt:g} s, "
-          f"{args.revolutions:g} revolution(s), MC {args.samples} samples, sweep {len(sweep_speeds)} speeds",
-          flush=True)
+    print(study.format_header(p, dt=args.dt, **settings), flush=True)
     start = time.perf_counter()
     result = study.run_study(
-        p, revolutions=args.revolutions, dt=args.dt, n_modes=n_modes, n_samples=args.samples,
-        sweep_speeds=sweep_speeds, sweep_steps=args.sweep_steps, speeds=args.speeds,
+        p, dt=args.dt, **settings, sweep_steps=args.sweep_steps, speeds=args.speeds,
         noise_levels=args.noise_levels, support_cases=args.supports, progress=not args.quiet,
     )
     written = study.write_outputs(result, out)
-    print(study.format_critical_table(result.critical))
-    if result.sweep is not None:
-        print("peaks of the maximum mean in the sweep (rad/s):",
-              ", ".join(f"{w:.2f}" for w in result.sweep["peaks"]) or "none")
-    print(f"done in {time.perf_counter() - start:.1f} s; {len(written)} files written to {Path(out).resolve()}")
+    print(study.format_summary(result))
+    print(f"done in {time.perf_counter() - start:.1f} s; {len(written)} files written to "
+          f"{Path(out).resolve()}")
     return 0
 
 
@@ -146,23 +107,27 @@ def _ring_file_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--n-elements", type=int, default=None,
                    help="number of curved-beam elements (a multiple of the bolt count; default: the file's)")
     p.add_argument("--support", type=int, choices=(1, 2, 3), default=None,
-                   help="support case of Sec. 6.4.3: 1 bolts, 2 pins, 3 soft pins (default: the file's [supports])")
+                   help="support case of Sec. 6.4.3: 1 bolts, 2 pins, 3 soft pins "
+                        "(default: the file's [supports])")
 
 
 def register(subparsers) -> None:
-    """Add ``ring-modal``, ``ring-free-vibration`` and ``ring-moving-load`` to an argparse subparsers object."""
-    modal = subparsers.add_parser("ring-modal", help="natural frequencies of a supported ring (TOML parameter file)",
-                                  description="Modal analysis of the curved-beam ring described by a parameter "
-                                              "file: frequencies (Hz, rad/s) and circumferential wave numbers.")
+    """Add ``ring-modal``, ``ring-free-vibration`` and ``ring-moving-load`` to an argparse subparsers
+    object."""
+    modal = subparsers.add_parser(
+        "ring-modal", help="natural frequencies of a supported ring (TOML parameter file)",
+        description="Modal analysis of the curved-beam ring described by a parameter file: frequencies "
+                    "(Hz, rad/s) and circumferential wave numbers.")
     _ring_file_options(modal)
-    modal.add_argument("--modes", type=_nonneg_int, default=24, help="modes listed (0 = all; default %(default)s)")
+    modal.add_argument("--modes", type=_nonneg_int, default=24,
+                       help="modes listed (0 = all; default %(default)s)")
     modal.add_argument("--json", action="store_true", help="print JSON instead of a table")
     modal.set_defaults(func=_run_modal)
 
-    free = subparsers.add_parser("ring-free-vibration",
-                                 help="thesis ch. 5: free ring gear, Models I and II against Table 5.3",
-                                 description="Free vibration of the Table 5.1 ring gear (Models I and II) for "
-                                             "wave numbers n = 2..7, against Table 5.3.")
+    free = subparsers.add_parser(
+        "ring-free-vibration", help="thesis ch. 5: free ring gear, Models I and II against Table 5.3",
+        description="Free vibration of the Table 5.1 ring gear (Models I and II) for wave numbers n = 2..7, "
+                    "against Table 5.3.")
     free.add_argument("--pitch-radius", type=_positive_float, default=176.0e-3,
                       help="pitch radius in m (ASSUMED, not in Table 5.1; default %(default)s)")
     free.add_argument("--face-width", type=_positive_float, default=33.5e-3,
@@ -175,35 +140,41 @@ def register(subparsers) -> None:
 
     ml = subparsers.add_parser(
         "ring-moving-load", help="thesis ch. 6: ring gear under random moving loads (Figs. 6.3-6.9)",
-        description="Stochastic Newmark moments of the bolted ring under N random moving mesh loads: base case "
-                    "with Monte Carlo (Figs. 6.3-6.4), three speeds (6.5-6.6), a speed sweep (6.7), noise "
-                    "levels (6.8), support cases (6.9), critical speeds against the ring's natural "
+        description="Stochastic Newmark moments of the bolted ring under N random moving mesh loads: base "
+                    "case with Monte Carlo (Figs. 6.3-6.4), three speeds (6.5-6.6), a speed sweep (6.7), "
+                    "noise levels (6.8), support cases (6.9), critical speeds against the ring's natural "
                     "frequencies, mode shapes. Writes labelled .npz results, summary.json and PNGs.")
     _ring_file_options(ml)
     ml.add_argument("--revolutions", type=float, default=1.0 / 3.0,
                     help="plotted window in revolutions (the mid-node response repeats every 1/3; default "
                          "%(default).3g, --full: 1)")
     ml.add_argument("--dt", type=_positive_float, default=4e-5,
-                    help="time step in s; must resolve the first ring mode (8,590 rad/s; default %(default)s)")
+                    help="time step in s; must resolve the first ring mode (8,590 rad/s; default "
+                         "%(default)s)")
     ml.add_argument("--modes", type=_nonneg_int, default=36,
                     help="modal model with this many modes (0 = full FE model; default %(default)s)")
     ml.add_argument("--samples", type=_nonneg_int, default=200,
                     help="Monte Carlo samples of the base case (0 skips MC; default %(default)s)")
     ml.add_argument("--speeds", type=_csv_floats, default=(22.0, 30.0, 50.0),
-                    help="comma-separated load speeds in rad/s of Figs. 6.5, 6.6, 6.8, 6.9 (default 22,30,50)")
+                    help="comma-separated load speeds in rad/s of Figs. 6.5, 6.6, 6.8, 6.9 "
+                         "(default 22,30,50)")
     ml.add_argument("--sweep-speeds", type=_nonneg_int, default=48,
                     help="number of speeds of the sweep (0 skips it; default %(default)s, --full: 190)")
-    ml.add_argument("--sweep-min", type=_positive_float, default=2.8, help="lowest sweep speed (default %(default)s)")
-    ml.add_argument("--sweep-max", type=_positive_float, default=50.0, help="highest sweep speed (default %(default)s)")
+    ml.add_argument("--sweep-min", type=_positive_float, default=2.8,
+                    help="lowest sweep speed (default %(default)s)")
+    ml.add_argument("--sweep-max", type=_positive_float, default=50.0,
+                    help="highest sweep speed (default %(default)s)")
     ml.add_argument("--sweep-steps", type=_nonneg_int, default=1536,
-                    help="steps per sweep run (half a load period of warm-up + one load period; a multiple of "
-                         "16; default %(default)s)")
+                    help="steps per sweep run (half a load period of warm-up + one load period; a multiple "
+                         "of 16; default %(default)s)")
     ml.add_argument("--noise-levels", type=_csv_floats, default=(0.5, 1.0, 2.0),
                     help="noise levels of Fig. 6.8 as multiples of the file's b (default 0.5,1,2)")
     ml.add_argument("--supports", type=_csv_ints, default=(1, 2, 3),
-                    help="support cases of Fig. 6.9 (comma-separated among 1,2,3; empty skips; default 1,2,3)")
+                    help="support cases of Fig. 6.9 (comma-separated among 1,2,3; empty skips; "
+                         "default 1,2,3)")
     ml.add_argument("--full", action="store_true",
                     help="thesis size: one revolution, 190 sweep speeds, >= 1000 MC samples")
-    ml.add_argument("--out", type=Path, default=None, help="output folder (default: pgtjax-output/ring_moving_load)")
+    ml.add_argument("--out", type=Path, default=None,
+                    help="output folder (default: pgtjax-output/ring_moving_load)")
     ml.add_argument("--quiet", action="store_true", help="no progress messages")
     ml.set_defaults(func=_run_moving_load)

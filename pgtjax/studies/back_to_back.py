@@ -26,6 +26,7 @@ Assumptions: face width 20 mm (= Hertz contact length), the circulating torque o
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import time
@@ -36,6 +37,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .. import params as _params
 from .. import plots
 from ..deterministic import simulate
 from ..modal import modal_analysis
@@ -187,6 +189,58 @@ def run_regime(
     )
 
 
+def load_params(
+    path=None,
+    *,
+    torque: float | None = None,
+    torque_end: float | None = None,
+    speed_start_rpm: float | None = None,
+    speed_end_rpm: float | None = None,
+    ramp_start: float | None = None,
+    ramp_duration: float | None = None,
+    face_width: float | None = None,
+) -> bb.BackToBackParams:
+    """Bench parameters from a TOML file (layout of ``back_to_back.toml``; ``None``: the embedded one) with
+    the operating point overridden where given: circulating torque at the start / end of the run-up (N m),
+    motor speeds (rpm), ramp start and duration (s), and the face width (m) of both stages' meshes."""
+    overrides = {}
+    for value, name, scale in (
+        (speed_start_rpm, "speed_start", bb.RPM),
+        (speed_end_rpm, "speed_end", bb.RPM),
+        (ramp_start, "ramp_start", 1.0),
+        (ramp_duration, "ramp_duration", 1.0),
+        (torque, "sun_torque", 1.0),
+        (torque_end, "torque_end", 1.0),
+    ):
+        if value is not None:
+            overrides[name] = value * scale
+    params = bb.load_params(path, **overrides)
+    if face_width is not None:
+        params = params.replace(
+            sun_planet=_with_width(params.sun_planet, face_width),
+            ring_planet=_with_width(params.ring_planet, face_width),
+        )
+    return params
+
+
+def _with_width(mesh, width):
+    return dataclasses.replace(mesh, face_width=jnp.asarray(width, jnp.float64))
+
+
+def run_up_end(params: bb.BackToBackParams) -> float:
+    """End of the run-up ramp, ``ramp_start + ramp_duration`` (s): the CLI's default simulated length."""
+    return float(params.ramp_start + params.ramp_duration)
+
+
+def format_header(params: bb.BackToBackParams, *, dt: float, t_end: float) -> str:
+    """One line describing a :func:`run_study` call (the CLI's first line)."""
+    return (
+        f"pgtjax back-to-back bench (paper seeds/002): 12 DOF, 12 Hertzian meshes, dt = {dt:g} s; "
+        f"run-up {float(params.speed_start) / bb.RPM:.0f} -> {float(params.speed_end) / bb.RPM:.0f} rpm, "
+        f"torque {float(params.sun_torque):g} -> {float(params.torque_end):g} N m, {t_end:g} s"
+    )
+
+
 @dataclass
 class BackToBackStudy:
     regimes: list[RegimeResult]
@@ -207,10 +261,11 @@ def run_study(
     progress: bool = True,
 ) -> BackToBackStudy:
     """Stationary regime (A) at ``speed_start``/``sun_torque`` for ``stationary_t_end`` s, then the run-up
-    profile of the parameters (A then B) for ``t_end`` s (default the TOML's ``t_end_s``)."""
+    profile of the parameters (A then B) for ``t_end`` s (default: ``[run_up] t_end_s`` of the embedded
+    ``back_to_back.toml``, read by :func:`pgtjax.params.read_toml`)."""
     p = bb.default_params() if params is None else params
     if t_end is None:
-        t_end = float(bb._read_toml(bb._params.path("back_to_back.toml"))["run_up"]["t_end_s"])
+        t_end = float(_params.read_toml(_params.path("back_to_back.toml"))["run_up"]["t_end_s"])
     say = print if progress else (lambda *a, **k: None)
     regimes = []
     say(
@@ -386,6 +441,16 @@ def format_modal_table(rows: list[dict]) -> str:
             + " ".join(f"{v:+.2e}" for v in r["shape"].values())
         )
     return "\n".join(lines)
+
+
+def format_ridges(ridges: dict) -> str:
+    """Plain-text lines of the STFT ridge checks of a study (``BackToBackStudy.ridges``)."""
+    return "\n".join(
+        f"STFT ridge {name:10s} {label:36s} order {c['order']}: max |ridge - k Z_r f_c| / (k Z_r f_c) = "
+        f"{100 * c['max_relative_error']:.2f} %"
+        for name, checks in ridges.items()
+        for label, c in checks.items()
+    )
 
 
 def format_hertz(h: dict) -> str:

@@ -21,6 +21,7 @@ import numpy as np
 
 from .. import plots
 from ..linearization import solve_moments
+from ..modal import modal_analysis
 from ..models import gear_pair as gp
 from ..montecarlo import monte_carlo
 from ..results import MomentResult, MonteCarloResult, save_results
@@ -69,8 +70,6 @@ def step_convergence(params=None, *, dts=(4e-5, 2e-5, 1e-5, 5e-6, 2.5e-6), t_end
     Returns a list of dicts (dt, omega_max dt, mean, std, relative errors)."""
     params = gp.default_params() if params is None else params
     system = gp.gear_pair(params)
-    from ..modal import modal_analysis
-
     w_max = float(modal_analysis(system).angular_frequencies[-1])
     rows = []
     for dt in dts:
@@ -83,6 +82,18 @@ def step_convergence(params=None, *, dts=(4e-5, 2e-5, 1e-5, 5e-6, 2.5e-6), t_end
         row["mean_rel_error"] = abs(row["mean"] - ref["mean"]) / abs(ref["mean"])
         row["std_rel_error"] = abs(row["std"] - ref["std"]) / ref["std"]
     return rows
+
+
+def load_params(path=None) -> gp.GearPairParams:
+    """Parameters from a TOML file (layout of ``gear_pair.toml``); ``None``: the embedded thesis Table 4.1
+    set."""
+    return gp.default_params() if path is None else gp.load_params(path)
+
+
+def load_inputs(path=None) -> tuple[gp.GearPairParams, list[tuple[str, float, float]]]:
+    """Parameters and ``[regimes]`` of a parameter file (``None``: the embedded one), as :func:`run_study`
+    takes them."""
+    return load_params(path), gp.load_regimes(path)
 
 
 def run_study(
@@ -226,4 +237,38 @@ def format_error_table(rows: list[dict]) -> str:
     for r in rows:
         vals = " ".join(f"{100 * r[q + '_mean_error']:9.2f}% {100 * r[q + '_std_error']:8.2f}%" for q, _ in QUANTITIES)
         lines.append(f"{r['regime']:14s} {r['criterion']:9s} {vals} {r['contact_loss_sl']:9.4f} {r['contact_loss_mc']:9.4f}")
+    return "\n".join(lines)
+
+
+def format_header(regimes, *, criteria, n_samples: int, dt: float, t_end: float) -> str:
+    """One line describing a :func:`run_study` call (the CLI's first line)."""
+    return (f"pgtjax gear pair (thesis ch. 4): {len(regimes)} regimes, SL {', '.join(criteria)}, "
+            f"MC {n_samples} samples, dt = {dt:g} s, t_end = {t_end:g} s")
+
+
+def format_step_table(rows: list[dict]) -> str:
+    """Plain-text table of :func:`step_convergence`."""
+    lines = [f"{'dt (s)':>10s} {'w_max dt':>9s} {'mean delta (m)':>15s} {'std delta (m)':>14s} "
+             f"{'d mean':>9s} {'d std':>9s}"]
+    lines += [f"{r['dt']:10.2e} {r['omega_max_dt']:9.3f} {r['mean']:15.6e} {r['std']:14.6e} "
+              f"{r['mean_rel_error']:9.2e} {r['std_rel_error']:9.2e}" for r in rows]
+    return "\n".join(lines)
+
+
+def modal_table(params=None) -> list[dict]:
+    """Natural frequencies (Hz) and mode shapes of the gear pair, the mesh closed at its mean stiffness:
+    ``[{mode, frequency_hz, shape: {dof: value}}]``."""
+    params = gp.default_params() if params is None else params
+    modes = modal_analysis(gp.gear_pair(params))
+    return [dict(mode=i + 1, frequency_hz=float(f),
+                 shape=dict(zip(modes.dof_names, map(float, modes.shapes[:, i]))))
+            for i, f in enumerate(modes.frequencies_hz)]
+
+
+def format_modal_table(rows: list[dict]) -> str:
+    """Plain-text table of :func:`modal_table`."""
+    names = list(rows[0]["shape"]) if rows else list(gp.DOF_NAMES)
+    lines = [f"{'mode':>4s} {'f (Hz)':>12s}  shape ({', '.join(names)})"]
+    lines += [f"{r['mode']:4d} {r['frequency_hz']:12.3f}  "
+              + " ".join(f"{v:+.3e}" for v in r["shape"].values()) for r in rows]
     return "\n".join(lines)

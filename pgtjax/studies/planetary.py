@@ -322,6 +322,88 @@ def error_summary(study: PlanetaryStudy, criterion: str | None = None) -> dict:
     )
 
 
+# ------------------------------------------------------------------------------ inputs and text reports
+
+
+def load_params(path=None, *, ring_model: str | None = None,
+                n_elements: int | None = None) -> pm.PlanetaryParams:
+    """Parameters from a TOML file (layout of ``planetary.toml``; ``None``: the embedded thesis set), with the
+    ring model and the number of ring elements overridden when given (``None`` or 0: the file's)."""
+    overrides = {}
+    if ring_model:
+        overrides["ring_model"] = ring_model
+    if n_elements:
+        overrides["n_elements"] = n_elements
+    return pm.load_params(path, **overrides) if path is not None else pm.default_params(**overrides)
+
+
+def format_header(params: pm.PlanetaryParams, *, periods: float, dt: float, criteria, n_samples: int) -> str:
+    """One line describing a :func:`run_study` call (the CLI's first line)."""
+    return (f"pgtjax planetary gear train (thesis ch. 3): {params.ring_model} ring, "
+            f"{params.n_planets} planets, {periods:g} carrier period(s) of {carrier_period(params):.2f} s "
+            f"at dt = {dt:g} s, "
+            f"SL {', '.join(criteria)}, MC {n_samples} samples")
+
+
+def standard_sweeps(params: pm.PlanetaryParams, *, dt=0.0027, periods=1.0, n_saves=200, sl_refine=10,
+                    say=None) -> dict | None:
+    """The SL sweeps of the thesis (rim thickness 87 / 128 / 168 mm, Figs. 3.12-3.15; 3, 6 or 9 bolt supports,
+    those dividing the number of ring elements), ``{title: {label: MomentResult}}`` for
+    :func:`write_outputs`; ``None`` for a rigid ring. ``say(message)`` is called before each sweep."""
+    if params.ring_model != "elastic":
+        return None
+    say = say or (lambda msg: None)
+    say("rim thickness 87 / 128 / 168 mm (SL)")
+    kw = dict(dt=dt, periods=periods, n_saves=n_saves, sl_refine=sl_refine)
+    sweeps = {"Rim thickness: thesis Figs. 3.12-3.15":
+              parameter_sweep(params, rim_thickness_variants(params), **kw)}
+    counts = tuple(c for c in (3, 6, 9) if params.ring.n_elements % c == 0)
+    say(f"bolt supports {counts} (SL)")
+    sweeps["Supports: number of bolts"] = parameter_sweep(params, support_variants(params, counts), **kw)
+    return sweeps
+
+
+def elastic_sensitivities(params: pm.PlanetaryParams, *, dt=0.0027, say=None) -> dict | None:
+    """:func:`sensitivities` for an elastic ring, ``None`` for a rigid one (no rim thickness or bolt
+    stiffness); ``say(message)`` is called before the computation."""
+    if params.ring_model != "elastic":
+        return None
+    (say or (lambda msg: None))("sensitivities by autodiff (checked by extrapolated central differences)")
+    return sensitivities(params, dt=dt)
+
+
+def format_error_summary(e: dict) -> str:
+    """Plain-text summary of :func:`error_summary` (SL against MC in MC standard errors)."""
+    f = e["mesh_force"]
+    quiet = ", ".join(e["roundoff_dofs_not_compared"]) or "none"
+    return (f"SL ({e['criterion']}) vs MC ({e['n_samples']} samples), in MC standard errors (s.e.):\n"
+            f"  {e['dofs_compared']} DOFs: {100 * e['fraction_of_dof_time_points_within_3_se']:.2f} % "
+            f"of (DOF, time) points within 3 s.e.; largest deviation {e['max_mean_error_in_se']:.1f} "
+            f"(mean), {e['max_std_error_in_se']:.1f} (std)\n"
+            f"  meshing forces: {100 * f['fraction_of_mesh_time_points_within_3_se']:.2f} % within 3 s.e.; "
+            f"largest deviation {f['max_mean_error_in_se']:.1f} (mean), "
+            f"{f['max_std_error_in_se']:.1f} (std)\n"
+            f"  max contact-loss probability {e['contact_loss_probability_max']:.3g}; "
+            f"not compared (zero by symmetry): {quiet}")
+
+
+def format_sensitivities(sens: dict) -> str:
+    """Plain-text lines of :func:`sensitivities`: gradient, extrapolated central differences, elasticities."""
+    return "\n".join(
+        f"d {q} / d(rim thickness, bolt k_r): autodiff [{grad[0]:.8e}, {grad[1]:.8e}], "
+        f"extrapolated central differences [{fd[0]:.8e}, {fd[1]:.8e}]; "
+        f"elasticities [{el[0]:+.3f}, {el[1]:+.3f}]"
+        for q, grad, fd, el in zip(sens["quantities"], sens["gradient"], sens["central_difference"],
+                                   sens["elasticity"]))
+
+
+def format_modal_table(rows: list[dict]) -> str:
+    """Plain-text table of :func:`modal_table`."""
+    lines = [f"{'mode':>4s} {'f (Hz)':>12s}  type"]
+    lines += [f"{r['mode']:4d} {r['frequency_hz']:12.3f}  {r['type']}" for r in rows]
+    return "\n".join(lines)
+
+
 # ---------------------------------------------------------------------------------------------- figures
 
 # Thesis App. A DOFs beyond FIGURE_DOFS, in the order shown when they carry more than round-off.

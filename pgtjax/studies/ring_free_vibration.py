@@ -188,6 +188,11 @@ def format_table(table: dict) -> str:
     return "\n".join(lines)
 
 
+def json_table(table: dict) -> dict:
+    """:func:`ring_gear_free_vibration_table` with plain Python floats (``json.dumps``-ready lists)."""
+    return {k: [float(v) for v in vals] for k, vals in table.items()}
+
+
 def write_outputs(outdir, **kw) -> list:
     """Write the Table 5.3 comparison (``table_5_3.json``) and mode-shape figures of Models I and II (the
     deformed free rings, :func:`pgtjax.studies.ring_moving_load.mode_shape_figure`) into ``outdir``.
@@ -201,7 +206,7 @@ def write_outputs(outdir, **kw) -> list:
     outdir.mkdir(parents=True, exist_ok=True)
     table = ring_gear_free_vibration_table(**kw)
     path = outdir / "table_5_3.json"
-    path.write_text(json.dumps({k: [float(v) for v in vals] for k, vals in table.items()}, indent=2))
+    path.write_text(json.dumps(json_table(table), indent=2))
     written = [path]
     for model in ("I", "II"):
         p = table_5_1_params(model, **kw)

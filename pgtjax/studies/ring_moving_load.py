@@ -56,7 +56,14 @@ import numpy as np
 from .. import plots
 from ..linearization import solve_moments
 from ..models import ring_moving_load as rml
-from ..models.ring import RingParams, natural_frequencies, ring_displacement_at, ring_matrices
+from ..models.ring import (
+    RingParams,
+    natural_frequencies,
+    nodal_diameter,
+    ring_displacement_at,
+    ring_matrices,
+    ring_natural_frequencies,
+)
 from ..montecarlo import monte_carlo
 from ..results import MomentResult, MonteCarloResult, save_results
 
@@ -271,6 +278,40 @@ def run_study(
         revolutions=revolutions, dt_s=dt, n_modes=n_modes, n_samples=n_samples, sweep_steps=sweep_steps))
 
 
+def load_params(source=None, *, n_elements: int | None = None,
+                support: int | None = None) -> rml.RingMovingLoadParams:
+    """The study's parameters: :func:`pgtjax.models.ring_moving_load.load_params` (``None``: the embedded
+    ``ring_ch6.toml``; ``n_elements`` and the support case of Sec. 6.4.3 override the file's)."""
+    return rml.load_params(source, n_elements=n_elements, support=support)
+
+
+def resolve_settings(p: rml.RingMovingLoadParams, *, revolutions: float = 1.0 / 3.0, n_modes: int = 36,
+                     n_samples: int = 200, n_sweep: int = 48, sweep_min: float = 2.8, sweep_max: float = 50.0,
+                     full: bool = False) -> dict:
+    """Checked keywords of :func:`run_study` from the command-line sizes: ``full`` is the thesis size (one
+    revolution, 190 sweep speeds, >= 1000 MC samples), ``n_modes = 0`` the full FE model, ``n_sweep`` equally
+    spaced sweep speeds from ``sweep_min`` to ``sweep_max`` (0 skips the sweep). A bad size is a
+    ``ValueError``. Returns ``dict(revolutions, n_modes, n_samples, sweep_speeds)``."""
+    if full:
+        revolutions, n_sweep, n_samples = 1.0, 190, max(n_samples, 1000)
+    if revolutions <= 0:
+        raise ValueError(f"`--revolutions` must be > 0, got {revolutions}")
+    n_modes = None if n_modes == 0 else n_modes
+    if n_modes is not None and n_modes > p.ring.n_dof:
+        raise ValueError(f"`--modes` must be <= 3 x n_elements = {p.ring.n_dof} (0 = full model), "
+                         f"got {n_modes}")
+    sweep_speeds = np.linspace(sweep_min, sweep_max, n_sweep) if n_sweep else np.array([])
+    return dict(revolutions=revolutions, n_modes=n_modes, n_samples=n_samples, sweep_speeds=sweep_speeds)
+
+
+def format_header(p: rml.RingMovingLoadParams, *, revolutions: float, n_modes: int | None, n_samples: int,
+                  sweep_speeds, dt: float) -> str:
+    """One line describing a :func:`run_study` call (the CLI's first line)."""
+    return (f"pgtjax ring under moving loads (thesis ch. 6): L = {p.ring.n_elements}, N = {p.n_loads} loads, "
+            f"{'full model' if n_modes is None else f'{n_modes} modes'}, dt = {dt:g} s, "
+            f"{revolutions:g} revolution(s), MC {n_samples} samples, sweep {len(sweep_speeds)} speeds")
+
+
 # ------------------------------------------------------------------------------------------------ plots
 
 
@@ -478,4 +519,41 @@ def format_critical_table(crit: dict) -> str:
     for r in crit["thesis_comparison"]:
         lines.append(f"{r['thesis']:14.2f} {r['harmonic']:10d} {r['band'][0]:11.2f} - {r['band'][1]:9.2f} "
                      f"{r['distance']:9.2f}")
+    return "\n".join(lines)
+
+
+def format_summary(study: RingMovingLoadStudy) -> str:
+    """Plain-text summary of a study: :func:`format_critical_table` and the peaks of the speed sweep."""
+    text = format_critical_table(study.critical)
+    if study.sweep is not None:
+        text += ("\npeaks of the maximum mean in the sweep (rad/s): "
+                 + (", ".join(f"{w:.2f}" for w in study.sweep["peaks"]) or "none"))
+    return text
+
+
+# ------------------------------------------------------------------------------------------- ring modes
+
+
+def modal_table(p: rml.RingMovingLoadParams | None = None, n_modes: int = 24) -> dict:
+    """Natural frequencies (Hz, rad/s) and circumferential wave numbers of the supported ring of ``p``, the
+    ``n_modes`` lowest (0 = all): ``dict(n_elements, support_nodes, modes=[{mode, frequency_hz,
+    angular_frequency_rad_s, wave_number}])``, ``json.dumps``-ready."""
+    p = rml.default_params() if p is None else p
+    f, x = ring_natural_frequencies(p.ring)
+    f, x = np.asarray(f), np.asarray(x)
+    k = min(n_modes, f.size) if n_modes else f.size
+    rows = [dict(mode=i + 1, frequency_hz=float(f[i]), angular_frequency_rad_s=float(2 * np.pi * f[i]),
+                 wave_number=nodal_diameter(x[:, i])) for i in range(k)]
+    return dict(n_elements=p.ring.n_elements, support_nodes=list(p.ring.support_nodes), modes=rows)
+
+
+def format_modal_table(p: rml.RingMovingLoadParams, table: dict) -> str:
+    """Plain-text :func:`modal_table` of ``p``'s ring, headed by its dimensions and supports."""
+    r = p.ring
+    lines = [f"ring R = {float(r.radius) * 1e3:.2f} mm, h = {float(r.thickness) * 1e3:.2f} mm, "
+             f"b = {float(r.face_width) * 1e3:.1f} mm, L = {r.n_elements} elements, "
+             f"supports at nodes {list(r.support_nodes)}",
+             f"{'mode':>4s} {'f (Hz)':>12s} {'omega (rad/s)':>14s} {'n':>3s}"]
+    lines += [f"{row['mode']:4d} {row['frequency_hz']:12.2f} {row['angular_frequency_rad_s']:14.1f} "
+              f"{row['wave_number']:3d}" for row in table["modes"]]
     return "\n".join(lines)

@@ -1,0 +1,118 @@
+"""Planetary subcommands of the ``pgtjax`` CLI (thesis ch. 3): ``run`` (the main job at a quick size),
+``planetary`` and ``planetary-modal``. :func:`register` adds them to the subparsers of
+:func:`pgtjax.cli.build_parser`; the work is done by :mod:`pgtjax.studies.planetary`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+from ._types import csv_names, nonneg_int, positive_float, positive_int
+
+
+def _add_planetary_options(p: argparse.ArgumentParser, quick: bool) -> None:
+    p.add_argument("--params", type=Path, default=None,
+                   help="planetary parameter file (TOML, layout of pgtjax/params/planetary.toml); "
+                        "default: the embedded thesis Tables 3.1-3.2 set")
+    p.add_argument("--samples", type=nonneg_int, default=300 if quick else 100_000,
+                   help="Monte Carlo samples (0 skips MC; default %(default)s; the thesis used 100,000)")
+    p.add_argument("--periods", type=positive_float, default=1.0,
+                   help="carrier periods simulated (default 1)")
+    p.add_argument("--dt", type=positive_float, default=0.0027, help="time step in s (thesis: 0.0027)")
+    p.add_argument("--saves", type=positive_int, default=200,
+                   help="Monte Carlo saved times (default %(default)s)")
+    p.add_argument("--sl-refine", type=positive_int, default=10,
+                   help="SL is saved this many times as often as MC (default %(default)s: resolves the "
+                        "meshing frequency)")
+    p.add_argument("--criteria", default="force",
+                   help="comma-separated SL criteria (force, energy, energy_origin)")
+    p.add_argument("--ring-model", choices=("elastic", "rigid"), default=None,
+                   help="override the parameter file's ring model")
+    p.add_argument("--elements", type=nonneg_int, default=None, help="override the number of ring elements")
+    p.add_argument("--no-sweeps", action="store_true", help="skip the rim-thickness and support studies")
+    p.add_argument("--no-sensitivities", action="store_true", help="skip the autodiff sensitivities")
+    p.add_argument("--seed", type=int, default=0, help="PRNG seed of the Monte Carlo")
+    p.add_argument("--chunk-size", type=nonneg_int, default=5000, help="MC samples per compiled batch")
+    p.add_argument("--out", type=Path, default=None, help="output folder (default: pgtjax-output/planetary)")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+
+
+def _params(args):
+    from ..studies import planetary as study
+
+    return study.load_params(args.params, ring_model=args.ring_model, n_elements=args.elements)
+
+
+def _run_planetary(args) -> int:
+    import jax
+
+    from ..studies import planetary as study
+
+    params = _params(args)
+    out = args.out or Path("pgtjax-output") / "planetary"
+    criteria = csv_names(args.criteria)
+    print(study.format_header(params, periods=args.periods, dt=args.dt, criteria=criteria,
+                              n_samples=args.samples))
+    start = time.perf_counter()
+    step = lambda msg: print(f"[{time.perf_counter() - start:7.1f} s] {msg}", flush=True)  # noqa: E731
+    step("SL + moment recursion" + (" and Monte Carlo" if args.samples else ""))
+    result = study.run_study(params, n_samples=args.samples, dt=args.dt, periods=args.periods,
+                             n_saves=args.saves, sl_refine=args.sl_refine, criteria=criteria,
+                             key=jax.random.key(args.seed), chunk_size=args.chunk_size,
+                             progress=not args.quiet)
+    sweeps = None
+    if not args.no_sweeps:
+        sweeps = study.standard_sweeps(params, dt=args.dt, periods=args.periods, n_saves=args.saves,
+                                       sl_refine=args.sl_refine, say=step)
+    step("modal analysis")
+    modal = study.modal_table(params)
+    sens = None if args.no_sensitivities else study.elastic_sensitivities(params, dt=args.dt, say=step)
+    written = study.write_outputs(result, out, sweeps=sweeps, modal=modal, sens=sens)
+    if result.mc is not None:
+        print(study.format_error_summary(study.error_summary(result)))
+    if sens is not None:
+        print(study.format_sensitivities(sens))
+    step(f"done; {len(written)} files written to {out.resolve()}")
+    return 0
+
+
+def _run_planetary_modal(args) -> int:
+    from ..studies import planetary as study
+
+    rows = study.modal_table(_params(args))
+    print(json.dumps(rows, indent=2) if args.json else study.format_modal_table(rows))
+    return 0
+
+
+def _full(args):
+    if args.full:
+        args.samples = 100_000
+    return args
+
+
+def register(subparsers) -> None:
+    """Add ``run``, ``planetary`` and ``planetary-modal`` to an argparse subparsers object."""
+    run = subparsers.add_parser("run", help="the main job on the embedded default parameters: the ch. 3 "
+                                            "planetary study at a quick size (--full: the thesis's "
+                                            "100,000 MC samples)")
+    _add_planetary_options(run, quick=True)
+    run.add_argument("--full", action="store_true", help="thesis size: 100,000 MC samples")
+    run.set_defaults(func=lambda a: _run_planetary(_full(a)))
+
+    plan = subparsers.add_parser("planetary", help="thesis ch. 3: planetary gear train with elastic ring, SL "
+                                                   "vs MC, rim thickness, supports, modes, sensitivities")
+    _add_planetary_options(plan, quick=False)
+    plan.set_defaults(func=_run_planetary)
+
+    pmodal = subparsers.add_parser("planetary-modal",
+                                   help="natural frequencies and mode types of the planetary model")
+    pmodal.add_argument("--params", type=Path, default=None, help="planetary parameter file (TOML)")
+    pmodal.add_argument("--ring-model", choices=("elastic", "rigid"), default=None,
+                        help="override the ring model")
+    pmodal.add_argument("--elements", type=nonneg_int, default=None,
+                        help="override the number of ring elements")
+    pmodal.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    pmodal.set_defaults(func=_run_planetary_modal)
