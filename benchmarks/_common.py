@@ -24,8 +24,13 @@ def machine() -> dict:
     except OSError:
         pass
     return dict(
-        platform=platform.platform(), python=platform.python_version(), cpu=cpu, cpu_count=os.cpu_count(),
-        jax=jax.__version__, backend=jax.default_backend(), devices=[str(d) for d in jax.devices()],
+        platform=platform.platform(),
+        python=platform.python_version(),
+        cpu=cpu,
+        cpu_count=os.cpu_count(),
+        jax=jax.__version__,
+        backend=jax.default_backend(),
+        devices=[str(d) for d in jax.devices()],
     )
 
 

@@ -19,7 +19,6 @@ from pathlib import Path
 
 import jax
 import numpy as np
-
 from _common import machine
 
 import pgtjax as pg
@@ -28,8 +27,6 @@ from pgtjax.studies import back_to_back as study
 
 DT = 1e-4
 T_END = 1.0
-
-
 
 
 def main(argv=None) -> int:

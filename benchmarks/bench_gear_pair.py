@@ -34,7 +34,12 @@ def numpy_monte_carlo(system_params, n_samples, n_steps, dt, rng, noise=True):
     g = np.asarray(sys.contact_direction(0.0))[:, 0]
     b = float(p.half_backlash)
     bs = np.asarray(sys.scaled_noise_input(0.0))[:, 0]
-    k0, ks_, kc_, w = float(p.mesh_stiffness), np.asarray(p.mesh_sin), np.asarray(p.mesh_cos), float(p.mesh_frequency)
+    k0, ks_, kc_, w = (
+        float(p.mesh_stiffness),
+        np.asarray(p.mesh_sin),
+        np.asarray(p.mesh_cos),
+        float(p.mesh_frequency),
+    )
     orders = np.arange(1, ks_.size + 1)
 
     def kmesh(t):
@@ -89,12 +94,22 @@ def main():
     check_numpy = float(np.max(np.abs(np_final - np.asarray(ref.u[-1]))) / np.max(np.abs(np_final)))
     assert check_numpy < 1e-9, check_numpy
     sl_small = pg.solve_moments(system, dt=dt, n_steps=n_check, save_every=n_check)
-    mc_small = pg.monte_carlo(system, n_samples=4000, key=jax.random.key(1), dt=dt, n_steps=n_check,
-                              save_every=n_check, progress=False)
+    mc_small = pg.monte_carlo(
+        system,
+        n_samples=4000,
+        key=jax.random.key(1),
+        dt=dt,
+        n_steps=n_check,
+        save_every=n_check,
+        progress=False,
+    )
     z_mc = np.abs(np.asarray(mc_small.mean_delta[-1] - sl_small.mean_delta[-1])) / np.asarray(
-        mc_small.std_delta[-1] / np.sqrt(4000))
-    print(f"correctness: NumPy vs pgtjax deterministic rel. diff {check_numpy:.1e}; "
-          f"MC vs SL mean delta {float(z_mc[0]):.2f} s.e. (heavy load, near-linear)")
+        mc_small.std_delta[-1] / np.sqrt(4000)
+    )
+    print(
+        f"correctness: NumPy vs pgtjax deterministic rel. diff {check_numpy:.1e}; "
+        f"MC vs SL mean delta {float(z_mc[0]):.2f} s.e. (heavy load, near-linear)"
+    )
 
     # --- SL + recursion
     sl_fn = lambda: pg.solve_moments(system, dt=dt, n_steps=n, save_every=100)  # noqa: E731
@@ -102,8 +117,18 @@ def main():
     print(f"SL + recursion, {n} steps: first call {sl_first:.2f} s, median {sl_med:.3f} s {sl_all}")
 
     # --- MC
-    mc_fn = lambda: pg.monte_carlo(system, n_samples=args.samples, key=jax.random.key(0), dt=dt,  # noqa: E731
-                                   n_steps=n, save_every=100, chunk_size=args.samples, progress=False).mean_u
+    mc_fn = lambda: (  # noqa: E731
+        pg.monte_carlo(
+            system,
+            n_samples=args.samples,
+            key=jax.random.key(0),
+            dt=dt,
+            n_steps=n,
+            save_every=100,
+            chunk_size=args.samples,
+            progress=False,
+        ).mean_u
+    )
     mc_first, mc_med, mc_all, _ = timed(mc_fn, repeats=args.repeats)
     print(f"MC {args.samples} x {n}: first call {mc_first:.2f} s, median {mc_med:.2f} s {mc_all}")
 
@@ -114,22 +139,44 @@ def main():
     np_per_sample_step = np_time / (args.numpy_samples * n)
     np_extrapolated = np_per_sample_step * args.samples * n
     jax_per_sample_step = mc_med / (args.samples * n)
-    print(f"NumPy baseline: {np_per_sample_step * 1e6:.2f} us per sample-step, extrapolated "
-          f"{np_extrapolated / 3600:.2f} h for {args.samples} x {n}; pgtjax {jax_per_sample_step * 1e9:.1f} ns "
-          f"per sample-step: {np_per_sample_step / jax_per_sample_step:.0f}x faster")
-    path = write("gear_pair", dict(
-        command="python benchmarks/bench_gear_pair.py " + " ".join(
-            f"--{k.replace('_', '-')} {v}" for k, v in vars(args).items()),
-        dt_s=dt, steps=n, samples=args.samples,
-        correctness=dict(numpy_vs_pgtjax_rel_diff=check_numpy, mc_vs_sl_mean_delta_in_se=float(z_mc[0])),
-        sl=dict(first_call_s=sl_first, median_s=sl_med, runs_s=sl_all, compile_estimate_s=sl_first - sl_med,
-                ratio_vs_thesis_35s=THESIS_SL_S / sl_med),
-        mc=dict(first_call_s=mc_first, median_s=mc_med, runs_s=mc_all, compile_estimate_s=mc_first - mc_med,
-                per_sample_step_ns=jax_per_sample_step * 1e9, ratio_vs_thesis_8h=THESIS_MC_S / mc_med),
-        numpy_baseline=dict(samples_timed=args.numpy_samples, seconds=np_time,
-                            per_sample_step_us=np_per_sample_step * 1e6, extrapolated_s=np_extrapolated,
-                            speedup_per_sample_step=np_per_sample_step / jax_per_sample_step),
-    ))
+    print(
+        f"NumPy baseline: {np_per_sample_step * 1e6:.2f} us per sample-step, extrapolated "
+        f"{np_extrapolated / 3600:.2f} h for {args.samples} x {n}; pgtjax {jax_per_sample_step * 1e9:.1f} ns "
+        f"per sample-step: {np_per_sample_step / jax_per_sample_step:.0f}x faster"
+    )
+    path = write(
+        "gear_pair",
+        dict(
+            command="python benchmarks/bench_gear_pair.py "
+            + " ".join(f"--{k.replace('_', '-')} {v}" for k, v in vars(args).items()),
+            dt_s=dt,
+            steps=n,
+            samples=args.samples,
+            correctness=dict(numpy_vs_pgtjax_rel_diff=check_numpy, mc_vs_sl_mean_delta_in_se=float(z_mc[0])),
+            sl=dict(
+                first_call_s=sl_first,
+                median_s=sl_med,
+                runs_s=sl_all,
+                compile_estimate_s=sl_first - sl_med,
+                ratio_vs_thesis_35s=THESIS_SL_S / sl_med,
+            ),
+            mc=dict(
+                first_call_s=mc_first,
+                median_s=mc_med,
+                runs_s=mc_all,
+                compile_estimate_s=mc_first - mc_med,
+                per_sample_step_ns=jax_per_sample_step * 1e9,
+                ratio_vs_thesis_8h=THESIS_MC_S / mc_med,
+            ),
+            numpy_baseline=dict(
+                samples_timed=args.numpy_samples,
+                seconds=np_time,
+                per_sample_step_us=np_per_sample_step * 1e6,
+                extrapolated_s=np_extrapolated,
+                speedup_per_sample_step=np_per_sample_step / jax_per_sample_step,
+            ),
+        ),
+    )
     print("wrote", path)
 
 

@@ -34,17 +34,30 @@ def main():
     wall = time.perf_counter() - start
     rss_gb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024**2
     e = study.error_summary(result)
-    print(f"SL + MC of {args.samples} samples over one carrier period ({result.settings['n_steps']} steps): "
-          f"{wall:.1f} s wall including compilation, peak RSS {rss_gb:.2f} GB; MC stepped in "
-          f"{result.mc.propagation} coordinates")
-    print(f"SL vs MC: {100 * e['fraction_of_dof_time_points_within_3_se']:.2f} % of (DOF, time) points within 3 s.e.")
-    path = write("planetary_full", dict(
-        command=f"python benchmarks/bench_planetary_full.py --samples {args.samples} --chunk-size {args.chunk_size}",
-        samples=args.samples, chunk_size=args.chunk_size, steps=result.settings['n_steps'], dt_s=result.dt,
-        settings=result.settings,
-        wall_s_including_compilation=wall, peak_rss_gb=rss_gb, propagation=result.mc.propagation,
-        ratio_vs_thesis_223_cpu_hours=THESIS_MC_S / wall, sl_vs_mc=e,
-    ))
+    print(
+        f"SL + MC of {args.samples} samples over one carrier period ({result.settings['n_steps']} steps): "
+        f"{wall:.1f} s wall including compilation, peak RSS {rss_gb:.2f} GB; MC stepped in "
+        f"{result.mc.propagation} coordinates"
+    )
+    print(
+        f"SL vs MC: {100 * e['fraction_of_dof_time_points_within_3_se']:.2f} % of (DOF, time) points within 3 s.e."
+    )
+    path = write(
+        "planetary_full",
+        dict(
+            command=f"python benchmarks/bench_planetary_full.py --samples {args.samples} --chunk-size {args.chunk_size}",
+            samples=args.samples,
+            chunk_size=args.chunk_size,
+            steps=result.settings["n_steps"],
+            dt_s=result.dt,
+            settings=result.settings,
+            wall_s_including_compilation=wall,
+            peak_rss_gb=rss_gb,
+            propagation=result.mc.propagation,
+            ratio_vs_thesis_223_cpu_hours=THESIS_MC_S / wall,
+            sl_vs_mc=e,
+        ),
+    )
     print("wrote", path)
 
 

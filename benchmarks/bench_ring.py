@@ -45,8 +45,14 @@ def main():
 
     @jax.jit
     def forward(thickness, k_radial):
-        r = pg.solve_moments(build(thickness, k_radial), dt=dt, n_steps=n, save_every=n // 144,
-                             initial_displacement=u0, initial_velocity=v0)
+        r = pg.solve_moments(
+            build(thickness, k_radial),
+            dt=dt,
+            n_steps=n,
+            save_every=n // 144,
+            initial_displacement=u0,
+            initial_velocity=v0,
+        )
         return r.mean_u, r.std_u
 
     def objective(thickness, k_radial):
@@ -74,8 +80,12 @@ def main():
         fd.append((float(objective(*a)) - float(objective(*b))) / (2 * step))
     rel_grad = [abs(float(g[i]) - fd[i]) / abs(fd[i]) for i in range(2)]
     assert max(rel_grad) < 1e-4, rel_grad
-    print(f"correctness: mean vs quasi-static K^-1 F(t) (mid-node) {rel_static:.1e}; grad vs central FD {rel_grad}")
-    print(f"mid-node: max |mean| {float(np.max(np.abs(mean[:, j]))):.3e} m, max std {float(np.max(std[:, j])):.3e} m")
+    print(
+        f"correctness: mean vs quasi-static K^-1 F(t) (mid-node) {rel_static:.1e}; grad vs central FD {rel_grad}"
+    )
+    print(
+        f"mid-node: max |mean| {float(np.max(np.abs(mean[:, j]))):.3e} m, max std {float(np.max(std[:, j])):.3e} m"
+    )
 
     # --- timing on fresh jitted functions: compile = first call - median of the repeats (run time); the
     # forward and gradient calls alternate so that their ratio sees the same machine load
@@ -85,22 +95,40 @@ def main():
     fwd_first, fwd_med, fwd_all = (t["forward"][key] for key in ("first_call_s", "median_s", "runs_s"))
     grd_first, grd_med, grd_all = (t["gradient"][key] for key in ("first_call_s", "median_s", "runs_s"))
     compile_fwd, compile_grad = fwd_first - fwd_med, grd_first - grd_med
-    print(f"forward, {n} steps (dt = {dt * 1e3:.3f} ms, 108 DOFs): compile ~{compile_fwd:.1f} s, run median "
-          f"{fwd_med:.3f} s {fwd_all}")
-    print(f"gradient (2 parameters, reverse mode): compile ~{compile_grad:.1f} s, run median {grd_med:.3f} s "
-          f"{grd_all}; ratio grad/forward {grd_med / fwd_med:.2f}")
-    path = write("ring", dict(
-        command="python benchmarks/bench_ring.py " + " ".join(
-            f"--{k.replace('_', '-')} {v}" for k, v in vars(args).items()),
-        model="ch. 6 ring, 36 curved-beam elements, 6 bolts, 108 DOFs (full FE), 3 moving random loads",
-        steps=n, dt_s=dt, revolution_s=float(p0.revolution_time), carrier_speed_rad_s=float(p0.carrier_speed),
-        correctness=dict(mean_vs_quasistatic_rel=rel_static, grad_vs_fd_rel=rel_grad),
-        forward=dict(compile_s=compile_fwd, median_s=fwd_med, runs_s=fwd_all, first_call_s=fwd_first,
-                     target_s=2.0),
-        gradient=dict(compile_s=compile_grad, median_s=grd_med, runs_s=grd_all, first_call_s=grd_first,
-                      ratio_to_forward=grd_med / fwd_med, target_ratio=5.0,
-                      value=[float(x) for x in g], wrt=["ring.thickness (m)", "ring.k_support_radial (N/m)"]),
-    ))
+    print(
+        f"forward, {n} steps (dt = {dt * 1e3:.3f} ms, 108 DOFs): compile ~{compile_fwd:.1f} s, run median "
+        f"{fwd_med:.3f} s {fwd_all}"
+    )
+    print(
+        f"gradient (2 parameters, reverse mode): compile ~{compile_grad:.1f} s, run median {grd_med:.3f} s "
+        f"{grd_all}; ratio grad/forward {grd_med / fwd_med:.2f}"
+    )
+    path = write(
+        "ring",
+        dict(
+            command="python benchmarks/bench_ring.py "
+            + " ".join(f"--{k.replace('_', '-')} {v}" for k, v in vars(args).items()),
+            model="ch. 6 ring, 36 curved-beam elements, 6 bolts, 108 DOFs (full FE), 3 moving random loads",
+            steps=n,
+            dt_s=dt,
+            revolution_s=float(p0.revolution_time),
+            carrier_speed_rad_s=float(p0.carrier_speed),
+            correctness=dict(mean_vs_quasistatic_rel=rel_static, grad_vs_fd_rel=rel_grad),
+            forward=dict(
+                compile_s=compile_fwd, median_s=fwd_med, runs_s=fwd_all, first_call_s=fwd_first, target_s=2.0
+            ),
+            gradient=dict(
+                compile_s=compile_grad,
+                median_s=grd_med,
+                runs_s=grd_all,
+                first_call_s=grd_first,
+                ratio_to_forward=grd_med / fwd_med,
+                target_ratio=5.0,
+                value=[float(x) for x in g],
+                wrt=["ring.thickness (m)", "ring.k_support_radial (N/m)"],
+            ),
+        ),
+    )
     print("wrote", path)
 
 

@@ -48,7 +48,9 @@ def raise_if_nonfinite(solver: str, times, fields) -> None:
     found = first_nonfinite(times, fields)
     if found is not None:
         t, name, label = found
-        raise SolverError(f"{solver}: non-finite {name} of {label!r} first at t = {t:.6g} s; {NONFINITE_CAUSES}")
+        raise SolverError(
+            f"{solver}: non-finite {name} of {label!r} first at t = {t:.6g} s; {NONFINITE_CAUSES}"
+        )
 
 
 def error_if_nonfinite(solver: str, tree, arrays):

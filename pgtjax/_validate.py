@@ -6,8 +6,9 @@ import jax
 import numpy as np
 
 
-def check_range(name: str, value, *, lo=None, hi=None, lo_closed: bool = True, hi_closed: bool = True,
-                unit: str = "") -> None:
+def check_range(
+    name: str, value, *, lo=None, hi=None, lo_closed: bool = True, hi_closed: bool = True, unit: str = ""
+) -> None:
     """``ValueError`` naming ``name`` and the accepted range unless every entry of ``value`` is finite and in
     the interval from ``lo`` to ``hi`` (closed or open at each end; ``None``: unbounded). Traced values (under
     ``jit``/``grad``/``vmap``) cannot be checked and pass."""

@@ -57,6 +57,7 @@ _SQRT2 = 1.4142135623730951
 _INV_SQRT_2PI = 0.3989422804014327
 _Z_SATURATION = 40.0
 
+
 class Linearization(NamedTuple):
     """Equivalent linear contact ``f ~ k_e (delta - mu) + f_0`` (N/m, N)."""
 
@@ -116,7 +117,9 @@ def as_criterion(criterion) -> AbstractCriterion:
         return criterion
     if isinstance(criterion, str) and criterion in CRITERIA:
         return CRITERIA[criterion]()
-    raise ValueError(f"`criterion` must be one of {tuple(CRITERIA)} or a pgtjax criterion object, got {criterion!r}")
+    raise ValueError(
+        f"`criterion` must be one of {tuple(CRITERIA)} or a pgtjax criterion object, got {criterion!r}"
+    )
 
 
 def check_criterion(criterion) -> None:
@@ -208,6 +211,7 @@ _GAUSS_HERMITE_POINTS = 24
 
 def check_law_inputs(law: ContactLaw, inputs, n_contacts: int):
     """``inputs`` with every leaf broadcast to ``(n_contacts,)``; ``ValueError`` naming the law if a leaf cannot be."""
+
     def broadcast(x):
         x = jnp.asarray(x, dtype=jnp.float64)
         if jnp.ndim(x) > 1 or (jnp.ndim(x) == 1 and x.shape[0] not in (1, n_contacts)):
@@ -337,7 +341,9 @@ class Backlash(ContactLaw):
         """The mesh stiffness ``k`` (N/m), scalar or (n_contacts,), must be >= 0 where it can be checked."""
         k = check_law_inputs(self, inputs, n_contacts)
         if not isinstance(k, jax.Array):
-            raise ValueError(f"Backlash takes the mesh stiffness (one array) as its input, got {type(inputs).__name__}")
+            raise ValueError(
+                f"Backlash takes the mesh stiffness (one array) as its input, got {type(inputs).__name__}"
+            )
         if not isinstance(k, jax.core.Tracer) and bool(jnp.any(k < 0.0)):
             raise ValueError(f"`contact stiffness` must be >= 0 N/m, got {np.asarray(k)}")
         return k

@@ -39,20 +39,31 @@ def simulate(
     n_steps, save_every = validate_time_grid(dt, n_steps, save_every)
     u0, v0 = initial_state(system, initial_displacement, initial_velocity)
     result = _simulate_jit(
-        system, jnp.asarray(t0, jnp.float64), jnp.asarray(dt, jnp.float64), u0, v0,
-        n_steps=n_steps, save_every=save_every, integrator=resolve_integrator(integrator, None),
+        system,
+        jnp.asarray(t0, jnp.float64),
+        jnp.asarray(dt, jnp.float64),
+        u0,
+        v0,
+        n_steps=n_steps,
+        save_every=save_every,
+        integrator=resolve_integrator(integrator, None),
     )
     if not throw:
         return result
     solver = "simulate"
-    fields = {"displacement": (result.u, result.dof_names), "velocity": (result.v, result.dof_names),
-              "contact force": (result.force, result.contact_names)}
+    fields = {
+        "displacement": (result.u, result.dof_names),
+        "velocity": (result.v, result.dof_names),
+        "contact force": (result.force, result.contact_names),
+    }
     if not is_concrete(result):
         return error_if_nonfinite(solver, result, [a for a, _ in fields.values()])
     raise_if_nonfinite(solver, result.times, fields)
     if int(result.unconverged):
-        raise SolverError(f"{solver}: the contact Newton solve did not converge in {int(result.unconverged)} steps; "
-                          "reduce `dt` or check the contact law, or pass throw=False to read `unconverged`")
+        raise SolverError(
+            f"{solver}: the contact Newton solve did not converge in {int(result.unconverged)} steps; "
+            "reduce `dt` or check the contact law, or pass throw=False to read `unconverged`"
+        )
     return result
 
 
@@ -71,12 +82,24 @@ def _simulate_jit(system, t0, dt, u0, v0, *, n_steps, save_every, integrator):
         state, ok = sample_step(system, state, snap0, snap1, dt, no_noise, integrator)
         return (state, snap1, bad + jnp.sum(~ok)), None
 
-    (_, _, bad), saved = saved_scan(step, lambda c, _, __: record(c[0], c[1]), (state, s0, jnp.array(0)),
-                                    record(state, s0), n_blocks=n_steps // save_every, save_every=save_every)
+    (_, _, bad), saved = saved_scan(
+        step,
+        lambda c, _, __: record(c[0], c[1]),
+        (state, s0, jnp.array(0)),
+        record(state, s0),
+        n_blocks=n_steps // save_every,
+        save_every=save_every,
+    )
     times = t0 + dt * save_every * jnp.arange(n_steps // save_every + 1, dtype=jnp.float64)
     return Trajectory(
-        times=times, dof_names=system.dof_names, dof_units=system.dof_units,
-        contact_names=system.contact_names(), u=saved[0], v=saved[1], delta=saved[2], force=saved[3],
+        times=times,
+        dof_names=system.dof_names,
+        dof_units=system.dof_units,
+        contact_names=system.contact_names(),
+        u=saved[0],
+        v=saved[1],
+        delta=saved[2],
+        force=saved[3],
         unconverged=bad,
     )
 
@@ -112,7 +135,9 @@ def static_equilibrium(
         initial_guess = jnp.asarray(initial_guess, jnp.float64)
         if initial_guess.shape != (n,):
             raise ValueError(f"`initial_guess` must have shape ({n},), got {initial_guess.shape}")
-    return _static_solve(system, jnp.asarray(t, jnp.float64), v, initial_guess, tol=float(tol), max_iter=max_iter)
+    return _static_solve(
+        system, jnp.asarray(t, jnp.float64), v, initial_guess, tol=float(tol), max_iter=max_iter
+    )
 
 
 def _static_residual(u, system: System, t, v):
@@ -146,8 +171,12 @@ def _static_implicit_jvp(primals, tangents):
     u_star, system, t, v = primals
     _, d_system, d_t, d_v = tangents
     dynamic, static = eqx.partition((system, t, v), eqx.is_inexact_array)
-    d_dynamic = jax.tree.map(lambda d, p: p if p is None else (jnp.zeros_like(p) if d is None else d),
-                             (d_system, d_t, d_v), dynamic, is_leaf=lambda x: x is None)
+    d_dynamic = jax.tree.map(
+        lambda d, p: p if p is None else (jnp.zeros_like(p) if d is None else d),
+        (d_system, d_t, d_v),
+        dynamic,
+        is_leaf=lambda x: x is None,
+    )
 
     def residual(dyn):
         return _static_residual(u_star, *eqx.combine(dyn, static))
@@ -190,7 +219,8 @@ def _static_solve(system, t, v, u_init, *, tol, max_iter):
 
     u, iterations, err = jax.lax.while_loop(cond, body, (u_init, jnp.array(0), error(u_init)))
     u = eqx.error_if(
-        u, ~(err <= tol),
+        u,
+        ~(err <= tol),
         f"static equilibrium: Newton did not reach a relative residual of {tol:g} in {max_iter} iterations "
         "(NaN, a mechanism held only by open contacts, or a load no contact can carry); check the loads and "
         "stiffnesses, or raise `max_iter`",

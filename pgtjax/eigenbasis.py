@@ -128,14 +128,21 @@ def eigen_propagator(system: System, h: float) -> tuple[EigenPropagator | None, 
     inverse = np.linalg.inv(basis)
     states = np.random.default_rng(0).standard_normal((2 * n, 8))  # fixed: the decision is reproducible
     exact = t_map @ states
-    error = np.max(np.linalg.norm(basis @ (block @ (inverse @ states)) - exact, axis=0)
-                   / np.linalg.norm(exact, axis=0))
+    error = np.max(
+        np.linalg.norm(basis @ (block @ (inverse @ states)) - exact, axis=0) / np.linalg.norm(exact, axis=0)
+    )
     if not error <= MAX_MAP_ERROR:
         return None, f"eigenbasis rejected (one step off by {error:.3g} relative, cond(W) {condition:.3g})"
     force_input = inverse @ np.concatenate([a_inv, a_inv], axis=0)
     prop = EigenPropagator(
-        jnp.asarray(basis), jnp.asarray(inverse), jnp.asarray(force_input), jnp.asarray(a_inv),
-        jnp.asarray(scale), jnp.asarray(b), h, condition,
+        jnp.asarray(basis),
+        jnp.asarray(inverse),
+        jnp.asarray(force_input),
+        jnp.asarray(a_inv),
+        jnp.asarray(scale),
+        jnp.asarray(b),
+        h,
+        condition,
     )
     return prop, ""
 
@@ -165,8 +172,15 @@ def eigen_physical(prop: EigenPropagator, state: EigenSampleState, snap: Snapsho
     return prop.to_physical(state.y - state.force @ _contact_input(prop, snap))
 
 
-def eigen_sample_step(system: System, prop: EigenPropagator, state: EigenSampleState, s0: Snapshot,
-                      s1: Snapshot, draws, integrator: AbstractIntegrator):
+def eigen_sample_step(
+    system: System,
+    prop: EigenPropagator,
+    state: EigenSampleState,
+    s0: Snapshot,
+    s1: Snapshot,
+    draws,
+    integrator: AbstractIntegrator,
+):
     """:func:`pgtjax.newmark.sample_step` in eigen-coordinates (module docstring); same arguments, with the
     step ``prop.h``. Returns the new state and the per-sample contact-solve flag.
 

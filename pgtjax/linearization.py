@@ -149,10 +149,12 @@ def _jacobian(nc: int, z, terms: _EndTerms, moments: _Moments, data: _StepData, 
     cov_sym = 0.5 * (moments.cov + moments.cov.T)
     d_cov = d * cov_sym / jnp.where(moments.std > 0.0, moments.std, jnp.inf)[:, None]
     k_e = terms.lin.k_e
-    jacobian = -jnp.block([
-        [d * (d_mu.k_e * gap + d_mu.f_0 - k_e)[None, :], d * (d_sigma.k_e * gap + d_sigma.f_0)[None, :]],
-        [d_cov * d_mu.k_e[None, :], d_cov * d_sigma.k_e[None, :]],
-    ])
+    jacobian = -jnp.block(
+        [
+            [d * (d_mu.k_e * gap + d_mu.f_0 - k_e)[None, :], d * (d_sigma.k_e * gap + d_sigma.f_0)[None, :]],
+            [d_cov * d_mu.k_e[None, :], d_cov * d_sigma.k_e[None, :]],
+        ]
+    )
     return jacobian - jnp.eye(2 * nc, dtype=z.dtype)
 
 
@@ -199,8 +201,9 @@ def _implicit_solution(z_star, terms, data, law, nc, criterion):
 
 def _materialize(tangent, primal):
     """A tangent pytree with its symbolic zeros (``None``) as zero arrays."""
-    return jax.tree.map(lambda t, p: jnp.zeros_like(p) if t is None else t, tangent, primal,
-                        is_leaf=lambda x: x is None)
+    return jax.tree.map(
+        lambda t, p: jnp.zeros_like(p) if t is None else t, tangent, primal, is_leaf=lambda x: x is None
+    )
 
 
 @_implicit_solution.def_jvp
@@ -327,8 +330,9 @@ def _linearize_contacts(system, snap: Snapshot, z, criterion) -> Linearization:
     nc = system.n_contacts
     if nc == 0:
         return Linearization(jnp.zeros((0,)), jnp.zeros((0,)))
-    return system.contacts.law.linearize(z[:nc], z[nc:], snap.contact_inputs, system.contacts.clearance,
-                                         criterion)
+    return system.contacts.law.linearize(
+        z[:nc], z[nc:], snap.contact_inputs, system.contacts.clearance, criterion
+    )
 
 
 def _linearized_terms(system, snap: Snapshot, z, lin: Linearization):
@@ -422,8 +426,13 @@ def _moment_step(system: System, carry: _Carry, t1, h, criterion, integrator, rt
         w0 = jax.scipy.linalg.lu_solve(lu, g1, trans=1).T  # G^T A^-1, (nc, n)
         v0 = solve_a(g1)  # A^-1 G, (n, nc)
         coupling = w0 @ g1
-        data = _StepData(coupling, w0 @ mean_rhs, w0 @ (y_mat + noise_cov) @ w0.T, s1.contact_inputs,
-                         system.contacts.clearance)
+        data = _StepData(
+            coupling,
+            w0 @ mean_rhs,
+            w0 @ (y_mat + noise_cov) @ w0.T,
+            s1.contact_inputs,
+            system.contacts.clearance,
+        )
         z1, terms, info = _solve_fixed_point(system, carry.z, data, criterion, rtol, max_iter)
         lin1 = terms.lin
         _, f1_lin = _linearized_terms(system, s1, z1, lin1)
@@ -485,8 +494,9 @@ def _varying_snapshot(system: System, t) -> Snapshot:
     return snapshot(system, t)._replace(damping=None, stiffness=None)
 
 
-def _moment_step_constant(system: System, carry: _Carry, t1, h, criterion, integrator, rtol, max_iter,
-                          prop: ConstantPropagator):
+def _moment_step_constant(
+    system: System, carry: _Carry, t1, h, criterion, integrator, rtol, max_iter, prop: ConstantPropagator
+):
     """One step of the recursion when K and C are constant (only the contacts, load and noise input vary).
 
     The contact-free map ``X = A^-1 [E, D]`` is formed once per run (the integrator's ``init``); the
@@ -601,15 +611,30 @@ def solve_moments(
         raise ValueError(f"`max_iter` must be an integer >= 1, got {max_iter!r}")
     n = system.n_dof
     u0, v0 = initial_state(system, initial_displacement, initial_velocity)
-    p0 = jnp.zeros((2 * n, 2 * n)) if initial_covariance is None else jnp.asarray(initial_covariance, jnp.float64)
+    p0 = (
+        jnp.zeros((2 * n, 2 * n))
+        if initial_covariance is None
+        else jnp.asarray(initial_covariance, jnp.float64)
+    )
     if p0.shape != (2 * n, 2 * n):
         raise ValueError(f"`initial_covariance` must have shape {(2 * n, 2 * n)}, got {p0.shape}")
     if not isinstance(p0, jax.core.Tracer) and not np.all(np.isfinite(np.asarray(p0))):
         raise ValueError("`initial_covariance` must be finite")
     result = _solve_moments_jit(
-        system, jnp.asarray(t0, jnp.float64), jnp.asarray(dt, jnp.float64), u0, v0, p0,
-        n_steps=n_steps, save_every=save_every, criterion=criterion, integrator=integrator,
-        rtol=rtol, max_iter=max_iter, checkpoint=checkpoint, observables=observables,
+        system,
+        jnp.asarray(t0, jnp.float64),
+        jnp.asarray(dt, jnp.float64),
+        u0,
+        v0,
+        p0,
+        n_steps=n_steps,
+        save_every=save_every,
+        criterion=criterion,
+        integrator=integrator,
+        rtol=rtol,
+        max_iter=max_iter,
+        checkpoint=checkpoint,
+        observables=observables,
     )
     return _checked(result) if throw else result
 
@@ -619,8 +644,10 @@ def _checked(result: MomentResult) -> MomentResult:
     whose fixed point did not converge (an in-``jit`` error where the result is traced)."""
     solver = "solve_moments (SL)"
     fields = {
-        "mean displacement": (result.mean_u, result.dof_names), "std of displacement": (result.std_u, result.dof_names),
-        "mean velocity": (result.mean_v, result.dof_names), "std of velocity": (result.std_v, result.dof_names),
+        "mean displacement": (result.mean_u, result.dof_names),
+        "std of displacement": (result.std_u, result.dof_names),
+        "mean velocity": (result.mean_v, result.dof_names),
+        "std of velocity": (result.std_v, result.dof_names),
         "mean contact force": (result.force_mean, result.contact_names),
         "std of contact force": (result.force_std, result.contact_names),
     }
@@ -643,7 +670,20 @@ def _checked(result: MomentResult) -> MomentResult:
 
 @eqx.filter_jit
 def _solve_moments_jit(
-    system, t0, dt, u0, v0, p0, *, n_steps, save_every, criterion, integrator, rtol, max_iter, checkpoint,
+    system,
+    t0,
+    dt,
+    u0,
+    v0,
+    p0,
+    *,
+    n_steps,
+    save_every,
+    criterion,
+    integrator,
+    rtol,
+    max_iter,
+    checkpoint,
     observables,
 ):
     mean0 = jnp.concatenate([u0, v0])
@@ -658,7 +698,9 @@ def _solve_moments_jit(
     n_blocks = n_steps // save_every
     lu_const = None
     if prop is not None and not constant_path:
-        lu_const = jax.scipy.linalg.lu_factor(effective_stiffness(system.mass, system.damping, system.stiffness, dt))
+        lu_const = jax.scipy.linalg.lu_factor(
+            effective_stiffness(system.mass, system.damping, system.stiffness, dt)
+        )
 
     def step(c, step_number, _):
         t1 = t0 + dt * step_number
@@ -671,7 +713,8 @@ def _solve_moments_jit(
         return _record(system, c, worst, t0 + dt * (block_index + 1) * save_every, observables)
 
     policy = jax.checkpoint_policies.save_only_these_names(_FIXED_POINT_NAME) if checkpoint else None
-    _, saved = saved_scan(step, record, carry, first, n_blocks=n_blocks, save_every=save_every,
-                          remat_policy=policy)
+    _, saved = saved_scan(
+        step, record, carry, first, n_blocks=n_blocks, save_every=save_every, remat_policy=policy
+    )
     times = t0 + dt * save_every * jnp.arange(n_blocks + 1, dtype=jnp.float64)
     return MomentResult.from_saved(system, times, saved, criterion=criterion.name, observables=observables)

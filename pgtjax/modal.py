@@ -63,7 +63,10 @@ def modes_of(mass, stiffness, dof_names=None) -> Modes:
     n = mass.shape[0]
     names = tuple(dof_names) if dof_names is not None else tuple(f"q{i}" for i in range(n))
     symmetric = isinstance(stiffness, jax.core.Tracer) or np.allclose(
-        np.asarray(stiffness), np.asarray(stiffness).T, rtol=1e-10, atol=1e-12 * float(jnp.max(jnp.abs(stiffness)))
+        np.asarray(stiffness),
+        np.asarray(stiffness).T,
+        rtol=1e-10,
+        atol=1e-12 * float(jnp.max(jnp.abs(stiffness))),
     )
     if symmetric:
         lam, shapes, _, _ = symmetric_eigen(mass, stiffness)

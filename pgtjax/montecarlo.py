@@ -56,8 +56,23 @@ def quantity_names(system: System, observables: Observables | None = None) -> li
 
 @eqx.filter_jit
 def _chunk(
-    system, key, sample_ids, weights, u0, v0, init_factor, t0, dt, hist_edges, observables, eigen, *, n_steps,
-    save_every, integrator, hist_columns,
+    system,
+    key,
+    sample_ids,
+    weights,
+    u0,
+    v0,
+    init_factor,
+    t0,
+    dt,
+    hist_edges,
+    observables,
+    eigen,
+    *,
+    n_steps,
+    save_every,
+    integrator,
+    hist_columns,
 ):
     n_batch = sample_ids.shape[0]
     nd = integrator.noise_dimension(system)
@@ -66,9 +81,9 @@ def _chunk(
     n = u0.shape[0]
     x0 = jnp.broadcast_to(jnp.concatenate([u0, v0]), (n_batch, 2 * n))
     if init_factor.shape[1]:  # random initial state: mean + F z, F F^T = initial covariance
-        z = jax.vmap(lambda k: jax.random.normal(jax.random.fold_in(k, _INITIAL_STATE_TAG), (init_factor.shape[1],)))(
-            sample_keys
-        )
+        z = jax.vmap(
+            lambda k: jax.random.normal(jax.random.fold_in(k, _INITIAL_STATE_TAG), (init_factor.shape[1],))
+        )(sample_keys)
         x0 = x0 + z @ init_factor.T
     state = initial_sample_state(system, s0, x0[:, :n], x0[:, n:])
     total = jnp.sum(weights)
@@ -132,8 +147,15 @@ def _chunk(
 
     first = statistics(state, s0, t0)
     carry = (state, s0, jnp.array(0.0))
-    carry, saved = saved_scan(advance, record, carry, first, n_blocks=n_steps // save_every,
-                              save_every=save_every, block_inputs=block_draws)
+    carry, saved = saved_scan(
+        advance,
+        record,
+        carry,
+        first,
+        n_blocks=n_steps // save_every,
+        save_every=save_every,
+        block_inputs=block_draws,
+    )
     return saved, carry[2]
 
 
@@ -212,7 +234,9 @@ def monte_carlo(
             raise ValueError(f"unknown histogram quantity {name!r}; choose from {names}")
         e = np.asarray(e, dtype=np.float64)
         if e.ndim != 1 or e.size < 2 or np.any(np.diff(e) <= 0) or not np.all(np.isfinite(e)):
-            raise ValueError(f"histogram edges for {name!r} must be a finite increasing 1-D array (>= 2 edges)")
+            raise ValueError(
+                f"histogram edges for {name!r} must be a finite increasing 1-D array (>= 2 edges)"
+            )
         hist_columns.append(names.index(name))
         edges.append(e)
     if len({e.size for e in edges}) > 1:
@@ -229,9 +253,22 @@ def monte_carlo(
         ids = np.arange(c * chunk, (c + 1) * chunk)
         weights = (ids < n_samples).astype(np.float64)
         (m_c, m2_c, loss_c, counts_c), bad_c = _chunk(
-            system, key, jnp.asarray(ids), jnp.asarray(weights), u0, v0, init_factor,
-            jnp.asarray(t0, jnp.float64), jnp.asarray(dt, jnp.float64), hist_edges, observables, eigen,
-            n_steps=n_steps, save_every=save_every, integrator=integrator, hist_columns=tuple(hist_columns),
+            system,
+            key,
+            jnp.asarray(ids),
+            jnp.asarray(weights),
+            u0,
+            v0,
+            init_factor,
+            jnp.asarray(t0, jnp.float64),
+            jnp.asarray(dt, jnp.float64),
+            hist_edges,
+            observables,
+            eigen,
+            n_steps=n_steps,
+            save_every=save_every,
+            integrator=integrator,
+            hist_columns=tuple(hist_columns),
         )
         n_c = float(weights.sum())
         m_c, m2_c = np.asarray(m_c), np.asarray(m2_c)
@@ -270,16 +307,21 @@ def monte_carlo(
         dof_units=system.dof_units,
         contact_names=system.contact_names(),
         n_samples=int(total_n),
-        mean_u=jnp.asarray(mu_u), std_u=jnp.asarray(sd_u),
-        mean_v=jnp.asarray(mu_v), std_v=jnp.asarray(sd_v),
-        mean_delta=jnp.asarray(mu_d), std_delta=jnp.asarray(sd_d),
-        force_mean=jnp.asarray(mu_f), force_std=jnp.asarray(sd_f),
+        mean_u=jnp.asarray(mu_u),
+        std_u=jnp.asarray(sd_u),
+        mean_v=jnp.asarray(mu_v),
+        std_v=jnp.asarray(sd_v),
+        mean_delta=jnp.asarray(mu_d),
+        std_delta=jnp.asarray(sd_d),
+        force_mean=jnp.asarray(mu_f),
+        force_std=jnp.asarray(sd_f),
         histogram_times=jnp.asarray(times[hist_idx]),
         histogram_edges={name: jnp.asarray(e) for name, e in zip(histograms, edges)},
         histograms={name: jnp.asarray(counts[hist_idx, j]) for j, name in enumerate(histograms)},
         contact_loss_probability=jnp.asarray(loss / total_n),
         unconverged=jnp.asarray(bad),
-        mean_obs=jnp.asarray(mu_o), std_obs=jnp.asarray(sd_o),
+        mean_obs=jnp.asarray(mu_o),
+        std_obs=jnp.asarray(sd_o),
         observable_names=() if observables is None else observables.names,
         propagation="physical" if eigen is None else "eigen",
     )

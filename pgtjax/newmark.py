@@ -147,9 +147,13 @@ def resolve_integrator(integrator: AbstractIntegrator | None, noise_scheme: str 
     shorthand (``"trapezoidal"``: :class:`Newmark`, the default; ``"newmark"``: :class:`NewmarkBridge`)."""
     if integrator is not None:
         if not isinstance(integrator, AbstractIntegrator):
-            raise ValueError(f"`integrator` must be a pgtjax integrator (e.g. pgtjax.Newmark()), got {integrator!r}")
+            raise ValueError(
+                f"`integrator` must be a pgtjax integrator (e.g. pgtjax.Newmark()), got {integrator!r}"
+            )
         if noise_scheme is not None and noise_scheme != integrator.name:
-            raise ValueError(f"`noise_scheme={noise_scheme!r}` contradicts `integrator={integrator!r}`: give one")
+            raise ValueError(
+                f"`noise_scheme={noise_scheme!r}` contradicts `integrator={integrator!r}`: give one"
+            )
         return integrator
     noise_scheme = "trapezoidal" if noise_scheme is None else noise_scheme
     if noise_scheme not in NOISE_SCHEMES:
@@ -266,7 +270,9 @@ def solve_contacts_batch(delta_lin, coupling, k, b, law, *, tol=1e-12, max_iter=
     """
     nc = delta_lin.shape[1]
     if not law.on_off_stiffness or nc > _PATTERN_TABLE_MAX_CONTACTS:
-        return jax.vmap(lambda dl: solve_contacts(dl, coupling, k, b, law, tol=tol, max_iter=max_iter))(delta_lin)
+        return jax.vmap(lambda dl: solve_contacts(dl, coupling, k, b, law, tol=tol, max_iter=max_iter))(
+            delta_lin
+        )
     bits = 2 ** jnp.arange(nc)
     patterns = ((jnp.arange(2**nc)[:, None] & bits[None, :]) > 0).astype(delta_lin.dtype)  # (2^nc, nc)
     eye = jnp.eye(nc, dtype=delta_lin.dtype)
@@ -303,7 +309,8 @@ def solve_contacts_batch(delta_lin, coupling, k, b, law, *, tol=1e-12, max_iter=
     piece0 = law.affine_piece(delta_lin, k_rows, b[None, :])
     if piece0 is None:
         d, _, _, err = jax.lax.while_loop(
-            cond, body, (delta_lin, r0, jnp.array(0), jnp.max(jnp.abs(r0) / scale, axis=1)))
+            cond, body, (delta_lin, r0, jnp.array(0), jnp.max(jnp.abs(r0) / scale, axis=1))
+        )
         return d, err <= tol
     d1 = newton_step(delta_lin, r0)
     same_piece = law.affine_piece(d1, k_rows, b[None, :]) == piece0
@@ -324,8 +331,16 @@ def solve_contact_forces(system: System, delta_lin, coupling, k):
     return law.force(delta, _batched(k), b[None, :]), ok
 
 
-def sample_step(system: System, state: SampleState, s0: Snapshot, s1: Snapshot, h, draws,
-                integrator: AbstractIntegrator, prop: ConstantPropagator | None = None):
+def sample_step(
+    system: System,
+    state: SampleState,
+    s0: Snapshot,
+    s1: Snapshot,
+    h,
+    draws,
+    integrator: AbstractIntegrator,
+    prop: ConstantPropagator | None = None,
+):
     """Advance a batch of samples of the *nonlinear* system by one step (module docstring).
 
     ``draws`` are the standard normals of the step, (batch, noise_dimension). The solve with ``K_eff`` is
@@ -342,8 +357,10 @@ def sample_step(system: System, state: SampleState, s0: Snapshot, s1: Snapshot, 
         blocks += [s0.direction, s1.direction]
     if prop is None:
         mats = integrator.step_matrices(system, s0, s1, h)
-        x = jnp.linalg.solve(mats.effective_stiffness, jnp.concatenate(
-            [mats.from_displacement, mats.from_velocity] + blocks, axis=1))
+        x = jnp.linalg.solve(
+            mats.effective_stiffness,
+            jnp.concatenate([mats.from_displacement, mats.from_velocity] + blocks, axis=1),
+        )
         x_state, x = x[:, : 2 * n], x[:, 2 * n :]
     else:
         x_state, x = prop.x, prop.a_inv @ jnp.concatenate(blocks, axis=1)
@@ -357,8 +374,9 @@ def sample_step(system: System, state: SampleState, s0: Snapshot, s1: Snapshot, 
     if nc:
         kinv_g0, kinv_g1 = x[:, col : col + nc], x[:, col + nc : col + 2 * nc]
         u_lin = u_lin - state.force @ kinv_g0.T
-        force, ok = solve_contact_forces(system, u_lin @ s1.direction, s1.direction.T @ kinv_g1,
-                                         s1.contact_inputs)
+        force, ok = solve_contact_forces(
+            system, u_lin @ s1.direction, s1.direction.T @ kinv_g1, s1.contact_inputs
+        )
         u1 = u_lin - force @ kinv_g1.T
     else:
         force = state.force

@@ -24,12 +24,23 @@ import numpy as np
 from matplotlib.figure import Figure
 
 STYLE = {
-    "font.size": 9, "axes.labelsize": 9, "axes.titlesize": 9, "legend.fontsize": 8, "lines.linewidth": 1.2,
-    "axes.grid": True, "grid.alpha": 0.3, "figure.dpi": 100, "savefig.dpi": 200, "savefig.bbox": "tight",
+    "font.size": 9,
+    "axes.labelsize": 9,
+    "axes.titlesize": 9,
+    "legend.fontsize": 8,
+    "lines.linewidth": 1.2,
+    "axes.grid": True,
+    "grid.alpha": 0.3,
+    "figure.dpi": 100,
+    "savefig.dpi": 200,
+    "savefig.bbox": "tight",
 }
-LINESTYLES = {"MC": dict(color="k", lw=1.6), "SL force": dict(color="tab:blue", ls="--"),
-              "SL energy": dict(color="tab:red", ls=":"),
-              "SL energy_origin": dict(color="tab:green", ls="-.")}
+LINESTYLES = {
+    "MC": dict(color="k", lw=1.6),
+    "SL force": dict(color="tab:blue", ls="--"),
+    "SL energy": dict(color="tab:red", ls=":"),
+    "SL energy_origin": dict(color="tab:green", ls="-."),
+}
 
 _SCALE = {"m": (1e6, "µm"), "rad": (1.0, "rad"), "N": (1e-3, "kN"), "m/s": (1e3, "mm/s")}
 
@@ -60,8 +71,15 @@ def readable_ylim(ax, min_relative_span: float = 1e-2) -> None:
         ax.set_ylim(centre - half, centre + half)
 
 
-def mean_std_figure(times, curves: dict, quantities: list[tuple[str, str]], title: str = "",
-                    second: str = "std", styles: dict | None = None, subtitle: str = ""):
+def mean_std_figure(
+    times,
+    curves: dict,
+    quantities: list[tuple[str, str]],
+    title: str = "",
+    second: str = "std",
+    styles: dict | None = None,
+    subtitle: str = "",
+):
     """One column per quantity, rows = mean and standard deviation (or mean square, ``second="mean square"``).
 
     ``curves[label][quantity] = (mean array, second array)``; ``quantities`` = [(name, unit)]; ``times`` (s)
@@ -112,8 +130,12 @@ def pdf_figure(edges, counts, n_samples, gaussians: dict, clearance=None, unit="
         ax.stairs(density, edges, color="k", lw=0.8)
         for label, (mu, sd) in gaussians.items():
             mu, sd = mu * factor, max(sd * factor, 1e-300)
-            ax.plot(x, np.exp(-0.5 * ((x - mu) / sd) ** 2) / (sd * np.sqrt(2 * np.pi)), label=label,
-                    **{k: v for k, v in LINESTYLES.get(label, {}).items() if k != "lw"})
+            ax.plot(
+                x,
+                np.exp(-0.5 * ((x - mu) / sd) ** 2) / (sd * np.sqrt(2 * np.pi)),
+                label=label,
+                **{k: v for k, v in LINESTYLES.get(label, {}).items() if k != "lw"},
+            )
         if clearance is not None:
             b = clearance * factor
             ax.axvspan(-b, b, color="tab:orange", alpha=0.15, label="backlash zone")

@@ -172,16 +172,27 @@ class MonteCarloResult(_Labelled):
         n = self.n_samples
         return sd / np.sqrt(n), sd / np.sqrt(2.0 * (n - 1))
 
-    def time_average(self, what: str = "u", *, t_start: float | None = None, t_end: float | None = None,
-                     n_batches: int = 10) -> TimeAverage:
+    def time_average(
+        self,
+        what: str = "u",
+        *,
+        t_start: float | None = None,
+        t_end: float | None = None,
+        n_batches: int = 10,
+    ) -> TimeAverage:
         """Time averages of ``mean_<what>`` and ``std_<what>`` (``what`` as in :meth:`standard_error`) over the
         saved times in ``[t_start, t_end]`` (s; default: the whole run) of a statistically stationary response,
         with batch-means standard errors: the window is cut into ``n_batches`` consecutive batches of saved
         times and the error is the standard deviation of the batch averages over sqrt(n_batches). The saved
         statistics are correlated in time (the same samples), which the batches account for when each batch
         is longer than the response's correlation time."""
-        fields = {"u": ("mean_u", "std_u"), "v": ("mean_v", "std_v"), "delta": ("mean_delta", "std_delta"),
-                  "obs": ("mean_obs", "std_obs"), "force": ("force_mean", "force_std")}
+        fields = {
+            "u": ("mean_u", "std_u"),
+            "v": ("mean_v", "std_v"),
+            "delta": ("mean_delta", "std_delta"),
+            "obs": ("mean_obs", "std_obs"),
+            "force": ("force_mean", "force_std"),
+        }
         if what not in fields:
             raise ValueError(f"`what` must be one of {', '.join(fields)}, got {what!r}")
         if isinstance(n_batches, bool) or not isinstance(n_batches, int | np.integer) or n_batches < 2:
@@ -190,13 +201,17 @@ class MonteCarloResult(_Labelled):
         lo = times[0] if t_start is None else float(t_start)
         hi = times[-1] if t_end is None else float(t_end)
         if not (np.isfinite(lo) and np.isfinite(hi) and times[0] <= lo <= hi <= times[-1]):
-            raise ValueError(f"the window `t_start`..`t_end` must lie in the run, [{times[0]:g}, {times[-1]:g}] s; "
-                             f"got [{lo:g}, {hi:g}]")
+            raise ValueError(
+                f"the window `t_start`..`t_end` must lie in the run, [{times[0]:g}, {times[-1]:g}] s; "
+                f"got [{lo:g}, {hi:g}]"
+            )
         window = (times >= lo) & (times <= hi)
         count = int(window.sum())
         if count < 2 * n_batches:
-            raise ValueError(f"the window holds {count} saved times: at least 2 per batch ({2 * n_batches}) are "
-                             "needed; widen it, save more often (`save_every`), or lower `n_batches`")
+            raise ValueError(
+                f"the window holds {count} saved times: at least 2 per batch ({2 * n_batches}) are "
+                "needed; widen it, save more often (`save_every`), or lower `n_batches`"
+            )
         out = []
         for name in fields[what]:
             series = np.asarray(getattr(self, name))[window]
@@ -256,7 +271,7 @@ def load_results(path):
     kwargs = {}
     for name in dict_fields:
         prefix = name + "/"
-        kwargs[name] = {k[len(prefix):]: jnp.asarray(v) for k, v in arrays.items() if k.startswith(prefix)}
+        kwargs[name] = {k[len(prefix) :]: jnp.asarray(v) for k, v in arrays.items() if k.startswith(prefix)}
     for name, value in arrays.items():
         if "/" not in name:
             kwargs[name] = jnp.asarray(value)

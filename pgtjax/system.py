@@ -103,17 +103,31 @@ class Contacts(eqx.Module):
     names: tuple[str, ...] = eqx.field(static=True)
     law: ContactLaw = Backlash()
 
-    def __init__(self, direction, inputs=None, clearance=None, names: Sequence[str] | None = None, law=None, *,
-                 stiffness=None):
+    def __init__(
+        self,
+        direction,
+        inputs=None,
+        clearance=None,
+        names: Sequence[str] | None = None,
+        law=None,
+        *,
+        stiffness=None,
+    ):
         if (inputs is None) == (stiffness is None):
-            raise ValueError("Contacts: give the law's inputs either as `inputs` or (for Backlash) `stiffness`, once")
+            raise ValueError(
+                "Contacts: give the law's inputs either as `inputs` or (for Backlash) `stiffness`, once"
+            )
         if clearance is None:
             raise ValueError("Contacts: `clearance` (half-backlash b >= 0 per contact, m) is required")
         inputs = stiffness if inputs is None else inputs
-        if isinstance(inputs, list | tuple) and not hasattr(inputs, "_fields"):  # a plain sequence is one array
+        if isinstance(inputs, list | tuple) and not hasattr(
+            inputs, "_fields"
+        ):  # a plain sequence is one array
             inputs = jnp.asarray(inputs, dtype=jnp.float64)
         self.direction = direction if callable(direction) else jnp.asarray(direction, dtype=jnp.float64)
-        self.inputs = inputs if callable(inputs) else jax.tree.map(lambda x: jnp.asarray(x, jnp.float64), inputs)
+        self.inputs = (
+            inputs if callable(inputs) else jax.tree.map(lambda x: jnp.asarray(x, jnp.float64), inputs)
+        )
         self.clearance = jnp.atleast_1d(jnp.asarray(clearance, dtype=jnp.float64))
         n = self.clearance.shape[0]
         self.names = tuple(names) if names is not None else tuple(f"contact{j}" for j in range(n))
@@ -271,7 +285,9 @@ def validate_system(system: System, t0: float = 0.0) -> None:
         _check_finite(name, value)
     b = at_time(system.noise_input, jnp.asarray(t0, dtype=jnp.float64))
     if jnp.ndim(b) != 2 or jnp.shape(b)[0] != n:
-        raise ValueError(f"`noise_input` must have shape ({n}, n_noise) (one row per DOF), got {jnp.shape(b)}")
+        raise ValueError(
+            f"`noise_input` must have shape ({n}, n_noise) (one row per DOF), got {jnp.shape(b)}"
+        )
     _check_finite("noise_input", b)
     _check_finite("spectral_density", system.spectral_density)
     if _is_concrete(system.spectral_density) and np.any(np.asarray(system.spectral_density) < 0.0):
@@ -321,7 +337,10 @@ def initial_state(system: System, initial_displacement=None, initial_velocity=No
     """Validated mean initial displacement and velocity, (n,) float64 each (default 0)."""
     n = system.n_dof
     out = []
-    for name, value in (("initial_displacement", initial_displacement), ("initial_velocity", initial_velocity)):
+    for name, value in (
+        ("initial_displacement", initial_displacement),
+        ("initial_velocity", initial_velocity),
+    ):
         value = jnp.zeros(n) if value is None else jnp.asarray(value, jnp.float64)
         if value.shape != (n,):
             raise ValueError(f"`{name}` must have shape ({n},), got {value.shape}")

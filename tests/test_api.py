@@ -11,9 +11,15 @@ import pgtjax as pg
 def gear_like(k_mesh, gap, load=800.0):
     """Two inertias (as translations) coupled by a backlash mesh, noise on the first."""
     return pg.System(
-        mass=np.diag([2.0, 3.0]), stiffness=np.diag([0.0, 2.0e4]), damping=np.array([[30.0, -10.0], [-10.0, 40.0]]),
-        load=jnp.array([load, 0.0]), noise_input=np.array([[1.0], [0.0]]), spectral_density=20.0,
-        contacts=pg.Contacts(direction=[[1.0], [-1.0]], stiffness=jnp.atleast_1d(k_mesh), clearance=jnp.atleast_1d(gap)),
+        mass=np.diag([2.0, 3.0]),
+        stiffness=np.diag([0.0, 2.0e4]),
+        damping=np.array([[30.0, -10.0], [-10.0, 40.0]]),
+        load=jnp.array([load, 0.0]),
+        noise_input=np.array([[1.0], [0.0]]),
+        spectral_density=20.0,
+        contacts=pg.Contacts(
+            direction=[[1.0], [-1.0]], stiffness=jnp.atleast_1d(k_mesh), clearance=jnp.atleast_1d(gap)
+        ),
     )
 
 
@@ -78,13 +84,21 @@ def test_nonconvergence_is_reported():
         (lambda: pg.System(mass=np.eye(2), stiffness=np.eye(3)), "stiffness"),
         (lambda: pg.System(mass=[[1.0]], stiffness=[[np.nan]]), "finite"),
         (lambda: pg.System(mass=[[1.0]], stiffness=[[1.0]], load=[np.inf]), "finite"),
-        (lambda: pg.System(mass=[[1.0]], stiffness=[[1.0]],
-                           contacts=pg.Contacts([[1.0]], [1.0], [-0.1])), "clearance"),
-        (lambda: pg.System(mass=[[1.0]], stiffness=[[1.0]],
-                           contacts=pg.Contacts([[1.0], [0.0]], [1.0], [0.1])), "direction"),
+        (
+            lambda: pg.System(mass=[[1.0]], stiffness=[[1.0]], contacts=pg.Contacts([[1.0]], [1.0], [-0.1])),
+            "clearance",
+        ),
+        (
+            lambda: pg.System(
+                mass=[[1.0]], stiffness=[[1.0]], contacts=pg.Contacts([[1.0], [0.0]], [1.0], [0.1])
+            ),
+            "direction",
+        ),
         (lambda: pg.System(mass=[[1.0]], stiffness=[[1.0]], noise_input=[[1.0], [1.0]]), "noise_input"),
-        (lambda: pg.System(mass=[[1.0]], stiffness=[[1.0]], noise_input=[[1.0]], spectral_density=-1.0),
-         "spectral_density"),
+        (
+            lambda: pg.System(mass=[[1.0]], stiffness=[[1.0]], noise_input=[[1.0]], spectral_density=-1.0),
+            "spectral_density",
+        ),
     ],
 )
 def test_bad_systems_raise_value_error(make, match):
@@ -92,11 +106,19 @@ def test_bad_systems_raise_value_error(make, match):
         pg.solve_moments(make(), dt=0.01, n_steps=2)
 
 
-@pytest.mark.parametrize("kwargs, match", [
-    (dict(dt=0.0), "dt"), (dict(dt=-1.0), "dt"), (dict(dt=np.nan), "dt"), (dict(n_steps=0), "n_steps"),
-    (dict(n_steps=10, save_every=3), "multiple"), (dict(criterion="x"), "criterion"),
-    (dict(noise_scheme="euler"), "noise_scheme"), (dict(initial_displacement=[1.0]), "initial_displacement"),
-])
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        (dict(dt=0.0), "dt"),
+        (dict(dt=-1.0), "dt"),
+        (dict(dt=np.nan), "dt"),
+        (dict(n_steps=0), "n_steps"),
+        (dict(n_steps=10, save_every=3), "multiple"),
+        (dict(criterion="x"), "criterion"),
+        (dict(noise_scheme="euler"), "noise_scheme"),
+        (dict(initial_displacement=[1.0]), "initial_displacement"),
+    ],
+)
 def test_bad_solver_arguments_raise_value_error(kwargs, match):
     args = dict(dt=0.01, n_steps=4) | kwargs
     with pytest.raises(ValueError, match=match):
@@ -119,8 +141,14 @@ def test_jit_of_value_and_grad_with_concrete_initial_state():
     u0 = np.array([1e-3, 0.0])
 
     def loss(k):
-        res = pg.solve_moments(gear_like(k, 0.02), dt=2e-3, n_steps=20, save_every=20, initial_displacement=u0,
-                               initial_covariance=np.eye(4) * 1e-8)
+        res = pg.solve_moments(
+            gear_like(k, 0.02),
+            dt=2e-3,
+            n_steps=20,
+            save_every=20,
+            initial_displacement=u0,
+            initial_covariance=np.eye(4) * 1e-8,
+        )
         return res.std_u[-1, 1]
 
     value, grad = jax.jit(jax.value_and_grad(loss))(5.0e4)
@@ -136,11 +164,23 @@ def test_numpy_integer_sizes_accepted_and_bools_refused():
     want = pg.solve_moments(system, n_steps=6, save_every=3, **kw)
     got = pg.solve_moments(system, n_steps=np.int64(6), save_every=np.int32(3), **kw)
     np.testing.assert_array_equal(got.std_u, want.std_u)
-    np.testing.assert_array_equal(pg.simulate(system, n_steps=np.int64(6), **kw).u,
-                                  pg.simulate(system, n_steps=6, **kw).u)
-    mc = pg.monte_carlo(system, n_samples=np.int64(40), chunk_size=np.int64(16), n_steps=np.int64(6),
-                        key=jax.random.key(0), progress=False, **kw)
-    np.testing.assert_array_equal(mc.std_u, pg.monte_carlo(system, n_samples=40, chunk_size=16, n_steps=6,
-                                                           key=jax.random.key(0), progress=False, **kw).std_u)
+    np.testing.assert_array_equal(
+        pg.simulate(system, n_steps=np.int64(6), **kw).u, pg.simulate(system, n_steps=6, **kw).u
+    )
+    mc = pg.monte_carlo(
+        system,
+        n_samples=np.int64(40),
+        chunk_size=np.int64(16),
+        n_steps=np.int64(6),
+        key=jax.random.key(0),
+        progress=False,
+        **kw,
+    )
+    np.testing.assert_array_equal(
+        mc.std_u,
+        pg.monte_carlo(
+            system, n_samples=40, chunk_size=16, n_steps=6, key=jax.random.key(0), progress=False, **kw
+        ).std_u,
+    )
     with pytest.raises(ValueError, match="`n_steps` must be an integer >= 1, got True"):
         pg.solve_moments(system, n_steps=True, **kw)

@@ -25,8 +25,9 @@ def _gauss_expect(fun, mu, sigma, lo, hi):
     zlo, zhi = max(zlo, -60.0), min(zhi, 60.0)
     if zlo >= zhi:
         return 0.0
-    val, _ = integrate.quad(lambda z: fun(mu + sigma * z) * stats.norm.pdf(z), zlo, zhi,
-                            epsabs=0.0, epsrel=1e-13, limit=400)
+    val, _ = integrate.quad(
+        lambda z: fun(mu + sigma * z) * stats.norm.pdf(z), zlo, zhi, epsabs=0.0, epsrel=1e-13, limit=400
+    )
     return val
 
 
@@ -64,7 +65,9 @@ def test_energy_coefficients_match_quadrature(mu_b, sigma_b):
     assert abs(float(lin.k_e) - expected) <= 1e-8 * max(expected, 1e-300)
 
 
-@pytest.mark.parametrize("mu_b,sigma_b", [(-1.0, 0.5), (0.0, 1.0), (0.5, 0.3), (1.5, 1.0), (3.0, 0.2), (0.0, 5.0)])
+@pytest.mark.parametrize(
+    "mu_b,sigma_b", [(-1.0, 0.5), (0.0, 1.0), (0.5, 0.3), (1.5, 1.0), (3.0, 0.2), (0.0, 5.0)]
+)
 def test_energy_criterion_is_the_minimizer_of_the_potential_error(mu_b, sigma_b):
     """Direct numerical minimization of E[(P(mu+y) - P(mu) - k_e y^2/2 - f_0 y)^2] over (k_e, f_0)."""
     mu, sigma = mu_b * B, sigma_b * B
@@ -72,13 +75,21 @@ def test_energy_criterion_is_the_minimizer_of_the_potential_error(mu_b, sigma_b)
 
     def objective(params):
         ke, f0 = params[0] * K, params[1] * K * sigma
-        err = lambda z: (pot(mu + sigma * z) - pot(mu) - 0.5 * ke * (sigma * z) ** 2 - f0 * sigma * z)  # noqa: E731
-        val, _ = integrate.quad(lambda z: err(z) ** 2 * stats.norm.pdf(z), -12, 12,
-                                points=[(-B - mu) / sigma, (B - mu) / sigma], epsabs=0, epsrel=1e-12, limit=200)
+        err = lambda z: pot(mu + sigma * z) - pot(mu) - 0.5 * ke * (sigma * z) ** 2 - f0 * sigma * z  # noqa: E731
+        val, _ = integrate.quad(
+            lambda z: err(z) ** 2 * stats.norm.pdf(z),
+            -12,
+            12,
+            points=[(-B - mu) / sigma, (B - mu) / sigma],
+            epsabs=0,
+            epsrel=1e-12,
+            limit=200,
+        )
         return val / (K * sigma**2) ** 2
 
-    res = optimize.minimize(objective, x0=[0.5, 0.0], method="Nelder-Mead",
-                            options=dict(xatol=1e-10, fatol=1e-16, maxiter=4000))
+    res = optimize.minimize(
+        objective, x0=[0.5, 0.0], method="Nelder-Mead", options=dict(xatol=1e-10, fatol=1e-16, maxiter=4000)
+    )
     lin = LAW.linearize(jnp.array(mu), jnp.array(sigma), K, B, "energy")
     np.testing.assert_allclose(float(lin.k_e) / K, res.x[0], atol=2e-6)
     np.testing.assert_allclose(float(lin.f_0) / (K * sigma), res.x[1], atol=2e-6)
@@ -100,8 +111,9 @@ def test_exact_cases():
     lin = LAW.linearize(jnp.array(mu), jnp.array(sigma), K, B, "energy_origin")
     force_ke = float(LAW.linearize(jnp.array(mu), jnp.array(sigma), K, B, "force").k_e)
     assert float(lin.k_e) > 5.0 * K
-    np.testing.assert_allclose(float(lin.k_e), 2 / 3 * (force_ke + 0.5 * K * ((mu - B) ** 2 + sigma**2) / sigma**2),
-                               rtol=1e-6)
+    np.testing.assert_allclose(
+        float(lin.k_e), 2 / 3 * (force_ke + 0.5 * K * ((mu - B) ** 2 + sigma**2) / sigma**2), rtol=1e-6
+    )
 
 
 def test_zero_sigma_is_the_deterministic_limit():
@@ -115,6 +127,7 @@ def test_zero_sigma_is_the_deterministic_limit():
 def test_gradients_finite_on_grid_and_match_finite_differences(crit):
     """The coefficients' derivatives (hand-written in terms of Phi and phi, see contact._flank_statistics)
     against central differences in (mu, sigma, k, b), in reverse and forward mode."""
+
     def coeffs(p):
         lin = LAW.linearize(p[0] * B, p[1] * B, p[2] * K, p[3] * B, crit)
         return jnp.stack([lin.k_e / K, lin.f_0 / (K * B)])
@@ -128,10 +141,14 @@ def test_gradients_finite_on_grid_and_match_finite_differences(crit):
         np.testing.assert_allclose(np.asarray(jac_fwd(p)), J, rtol=1e-13, atol=1e-15)
         if 0.05 <= sigma_b <= 20:
             h = 1e-6
-            fd = np.stack([(np.asarray(coeffs(p + h * e)) - np.asarray(coeffs(p - h * e))) / (2 * h)
-                           for e in np.eye(4)], axis=1)
+            fd = np.stack(
+                [
+                    (np.asarray(coeffs(p + h * e)) - np.asarray(coeffs(p - h * e))) / (2 * h)
+                    for e in np.eye(4)
+                ],
+                axis=1,
+            )
             np.testing.assert_allclose(J, fd, rtol=1e-5, atol=1e-7 * (1 + np.abs(fd).max()))
-
 
 
 @pytest.mark.parametrize("crit", ["force", "energy", "energy_origin"])
@@ -149,6 +166,7 @@ def test_hand_written_flank_derivatives_equal_plain_autodiff(crit):
         def f(mu, sigma, b):
             offset = jnp.stack([mu - b, -b - mu])
             return jnp.concatenate(stats_fn(crit, offset, sigma[None]))
+
         return f
 
     plain = stacked(lambda c, o, s: _flank_values(c, o, s)[3])
@@ -160,6 +178,7 @@ def test_hand_written_flank_derivatives_equal_plain_autodiff(crit):
         assert j_custom.dtype == np.float64 and np.all(np.isfinite(j_custom))
         scale = np.maximum(np.abs(j_plain).max(axis=1, keepdims=True), 1e-300)
         np.testing.assert_allclose(j_custom / scale, j_plain / scale, rtol=0, atol=1e-12)
+
 
 def test_force_moments_match_quadrature():
     for mu_b, sigma_b in [(-1.0, 0.5), (0.0, 1.0), (2.0, 0.7), (10.0, 0.2), (0.0, 30.0)]:

@@ -45,7 +45,12 @@ def _bench_law():
 # law, inputs (nc,), clearance (nc,), deflections probed (nc,), std probed, criteria with quadrature checks
 LAWS = {
     "backlash": (pg.Backlash(), jnp.array([2.0e8, 5.0e8]), jnp.array([1e-5, 0.0]), 1e-5),
-    "cubic": (CubicHardening(jnp.array([3.0e17, 1.0e18])), jnp.array([2.0e8, 5.0e8]), jnp.array([1e-5, 0.0]), 1e-5),
+    "cubic": (
+        CubicHardening(jnp.array([3.0e17, 1.0e18])),
+        jnp.array([2.0e8, 5.0e8]),
+        jnp.array([1e-5, 0.0]),
+        1e-5,
+    ),
 }
 
 
@@ -113,8 +118,15 @@ def test_contract_gaussian_statistics_match_adaptive_quadrature(name, regime):
         pdf = lambda x, m=m, s=s: np.exp(-0.5 * ((x - m) / s) ** 2) / (s * np.sqrt(2 * np.pi))  # noqa: E731
         lo, hi = m - 12 * s, m + 12 * s
         pts = [p for p in (-float(b[j]), float(b[j]), 0.0) if lo < p < hi]
-        expect = lambda fun: quad(lambda x: fun(x) * pdf(x), lo, hi, points=pts, limit=400,  # noqa: E731
-                                  epsabs=0.0, epsrel=1e-11)[0]
+        expect = lambda fun: quad(  # noqa: E731
+            lambda x: fun(x) * pdf(x),
+            lo,
+            hi,
+            points=pts,
+            limit=400,
+            epsabs=0.0,
+            epsrel=1e-11,
+        )[0]
         e_f = expect(lambda x: one(law.force, x))
         e_k = expect(lambda x: one(law.stiffness, x))
         e_f2 = expect(lambda x: one(law.force, x) ** 2)
@@ -137,7 +149,11 @@ def test_contract_gaussian_statistics_match_adaptive_quadrature(name, regime):
 def test_contract_single_contact_solve_residual(name):
     law, inputs, b, scale = _law_case(name)
     coupling = 1.0 / law.closed_stiffness(inputs, b)
-    for delta_lin in (jnp.array([5.0, -7.0]) * scale, jnp.array([0.3, 0.2]) * scale, jnp.array([-9.0, 3.0]) * scale):
+    for delta_lin in (
+        jnp.array([5.0, -7.0]) * scale,
+        jnp.array([0.3, 0.2]) * scale,
+        jnp.array([-9.0, 3.0]) * scale,
+    ):
         delta, ok = law.solve_single(delta_lin, coupling, inputs, b)
         assert bool(jnp.all(ok))
         residual = delta + coupling * law.force(delta, inputs, b) - delta_lin
@@ -154,7 +170,9 @@ def test_contract_linearization_gradients_match_central_differences(name, criter
 
     def value(mu, sigma, inputs, params):
         lin = eqx.combine(params, static).linearize(mu, sigma, inputs, b, criterion)
-        return jnp.sum(lin.k_e * jnp.array([1.0, 0.7])) / 1e8 + jnp.sum(lin.f_0 * jnp.array([0.3, -1.1])) / 1e3
+        return (
+            jnp.sum(lin.k_e * jnp.array([1.0, 0.7])) / 1e8 + jnp.sum(lin.f_0 * jnp.array([0.3, -1.1])) / 1e3
+        )
 
     args = (mu, sigma, inputs, params)
     grads = jax.grad(value, argnums=(0, 1, 2, 3))(*args)
@@ -183,9 +201,19 @@ M, C, K_MESH, K3, F0, S0 = 1.0, 2.0, 100.0, 4.0e4, 0.0, 0.1
 
 def _duffing_system(k3=K3, load=F0):
     law = CubicHardening(jnp.atleast_1d(jnp.asarray(k3, jnp.float64)))
-    contacts = pg.Contacts(direction=[[1.0]], inputs=jnp.array([K_MESH]), clearance=[0.0], names=["mesh"], law=law)
-    return pg.System(mass=[[M]], stiffness=[[0.0]], damping=[[C]], load=[load], noise_input=[[1.0]],
-                     spectral_density=S0, contacts=contacts, dof_names=["x"])
+    contacts = pg.Contacts(
+        direction=[[1.0]], inputs=jnp.array([K_MESH]), clearance=[0.0], names=["mesh"], law=law
+    )
+    return pg.System(
+        mass=[[M]],
+        stiffness=[[0.0]],
+        damping=[[C]],
+        load=[load],
+        noise_input=[[1.0]],
+        spectral_density=S0,
+        contacts=contacts,
+        dof_names=["x"],
+    )
 
 
 def _exact_stationary_moments(k3=K3, load=F0):
@@ -193,7 +221,9 @@ def _exact_stationary_moments(k3=K3, load=F0):
     beta = C / (np.pi * S0)
     pot = lambda x: 0.5 * K_MESH * x**2 + 0.25 * k3 * x**4 - load * x  # noqa: E731
     w = lambda x, p: x**p * np.exp(-beta * pot(x))  # noqa: E731
-    z, m1, m2 = (quad(lambda x, p=p: w(x, p), -1.0, 1.0, epsabs=0, epsrel=1e-12, limit=200)[0] for p in (0, 1, 2))
+    z, m1, m2 = (
+        quad(lambda x, p=p: w(x, p), -1.0, 1.0, epsabs=0, epsrel=1e-12, limit=200)[0] for p in (0, 1, 2)
+    )
     return m1 / z, np.sqrt(m2 / z - (m1 / z) ** 2)
 
 
@@ -226,8 +256,9 @@ def test_new_law_plugs_into_modal_and_deterministic_solvers():
         x, v = y
         return [v, -(C * v + K_MESH * x + K3 * x**3) / M]
 
-    ref = solve_ivp(rhs, (0.0, 1.0), [x0, 0.0], method="DOP853", rtol=1e-12, atol=1e-14,
-                    t_eval=np.asarray(traj.times))
+    ref = solve_ivp(
+        rhs, (0.0, 1.0), [x0, 0.0], method="DOP853", rtol=1e-12, atol=1e-14, t_eval=np.asarray(traj.times)
+    )
     # average acceleration is second order: error ~ (omega h)^2 / 12 relative over a few periods
     np.testing.assert_allclose(np.asarray(traj.u[:, 0]), ref.y[0], atol=2e-4 * x0)
     # static equilibrium under a load solves k x + k3 x^3 = F
@@ -243,8 +274,9 @@ def test_gradient_through_solve_moments_wrt_a_law_array_parameter_matches_centra
     def objective(k3):
         system = _duffing_system(k3=k3, load=1.0)
         u0 = pg.static_equilibrium(system)
-        sl = pg.solve_moments(system, dt=0.005, n_steps=200, save_every=50, criterion="force",
-                              initial_displacement=u0)
+        sl = pg.solve_moments(
+            system, dt=0.005, n_steps=200, save_every=50, criterion="force", initial_displacement=u0
+        )
         return sl.std_u[-1, 0] + 3.0 * sl.mean_u[-1, 0]
 
     k3 = jnp.array([K3])
@@ -260,8 +292,12 @@ def test_gradient_through_solve_moments_wrt_a_law_array_parameter_matches_centra
 def test_gradient_of_static_equilibrium_matches_central_differences():
     def build(p):
         k_c, b, k1, f = p
-        return pg.System(mass=np.eye(2), stiffness=jnp.array([[k1, 0.0], [0.0, 50.0]]), load=jnp.array([f, 0.3]),
-                         contacts=pg.Contacts(direction=[[1.0], [-1.0]], stiffness=k_c[None], clearance=b[None]))
+        return pg.System(
+            mass=np.eye(2),
+            stiffness=jnp.array([[k1, 0.0], [0.0, 50.0]]),
+            load=jnp.array([f, 0.3]),
+            contacts=pg.Contacts(direction=[[1.0], [-1.0]], stiffness=k_c[None], clearance=b[None]),
+        )
 
     def objective(p):
         u = pg.static_equilibrium(build(p))
@@ -276,8 +312,12 @@ def test_gradient_of_static_equilibrium_matches_central_differences():
         np.testing.assert_allclose(float(grad[i]), float(fd), rtol=1e-6)
     np.testing.assert_allclose(jax.jit(jax.grad(objective))(p), grad, rtol=1e-12)
     # a loaded mechanism whose only contact has no stiffness has no equilibrium: reported, not returned
-    free = pg.System(mass=[[1.0]], stiffness=[[0.0]], load=[1.0],
-                     contacts=pg.Contacts(direction=[[1.0]], stiffness=[0.0], clearance=[0.01]))
+    free = pg.System(
+        mass=[[1.0]],
+        stiffness=[[0.0]],
+        load=[1.0],
+        contacts=pg.Contacts(direction=[[1.0]], stiffness=[0.0], clearance=[0.01]),
+    )
     with pytest.raises(RuntimeError, match="static equilibrium"):
         pg.static_equilibrium(free)
 

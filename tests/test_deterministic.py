@@ -31,7 +31,9 @@ def harmonic_response(t, force, w):
     c1 = -b
     c2 = (-(a * w) + ZETA * OMEGA * c1) / OMEGA_D
     decay = np.exp(-ZETA * OMEGA * t)
-    return a * np.sin(w * t) + b * np.cos(w * t) + decay * (c1 * np.cos(OMEGA_D * t) + c2 * np.sin(OMEGA_D * t))
+    return (
+        a * np.sin(w * t) + b * np.cos(w * t) + decay * (c1 * np.cos(OMEGA_D * t) + c2 * np.sin(OMEGA_D * t))
+    )
 
 
 def _order(errors, steps):
@@ -63,8 +65,9 @@ def test_backlash_free_flight_and_contact():
     """A mass released inside the gap moves freely until it hits the flank: the contact time is exact for
     free flight, and afterwards the mass oscillates about the flank with the contact's frequency."""
     b, k, v0 = 1e-3, 1e4, 0.1
-    system = pg.System(mass=[[1.0]], stiffness=[[0.0]],
-                       contacts=pg.Contacts(direction=[[1.0]], stiffness=[k], clearance=[b]))
+    system = pg.System(
+        mass=[[1.0]], stiffness=[[0.0]], contacts=pg.Contacts(direction=[[1.0]], stiffness=[k], clearance=[b])
+    )
     traj = pg.simulate(system, dt=1e-5, n_steps=2000, initial_velocity=[v0])
     t = np.asarray(traj.times)
     x = np.asarray(traj.u[:, 0])

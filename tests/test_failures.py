@@ -14,8 +14,15 @@ def _stiffness(t):
 
 
 def _system():
-    return pg.System(mass=[[1.0]], stiffness=_stiffness, damping=[[0.5]], load=[1.0], noise_input=[[1.0]],
-                     spectral_density=0.01, dof_names=["x"])
+    return pg.System(
+        mass=[[1.0]],
+        stiffness=_stiffness,
+        damping=[[0.5]],
+        load=[1.0],
+        noise_input=[[1.0]],
+        spectral_density=0.01,
+        dof_names=["x"],
+    )
 
 
 KW = dict(dt=0.01, n_steps=100, save_every=10)
@@ -25,8 +32,9 @@ KW = dict(dt=0.01, n_steps=100, save_every=10)
 def test_first_nonfinite_time_and_quantity_are_named(solver):
     run = {
         "solve_moments": lambda **kw: pg.solve_moments(_system(), **KW, **kw),
-        "monte_carlo": lambda **kw: pg.monte_carlo(_system(), n_samples=20, key=jax.random.key(0), progress=False,
-                                                   **KW, **kw),
+        "monte_carlo": lambda **kw: pg.monte_carlo(
+            _system(), n_samples=20, key=jax.random.key(0), progress=False, **KW, **kw
+        ),
         "simulate": lambda **kw: pg.simulate(_system(), **KW, **kw),
     }[solver]
     with pytest.raises(pg.SolverError, match=r"non-finite .*'(u:)?x'.* first at t = 0\.5 s") as info:
@@ -40,8 +48,13 @@ def test_first_nonfinite_time_and_quantity_are_named(solver):
 
 def test_nonfinite_moments_under_jit_raise_too():
     def std_at_end(scale):
-        system = pg.System(mass=[[1.0]], stiffness=lambda t: scale * _stiffness(t), damping=[[0.5]],
-                           noise_input=[[1.0]], spectral_density=0.01)
+        system = pg.System(
+            mass=[[1.0]],
+            stiffness=lambda t: scale * _stiffness(t),
+            damping=[[0.5]],
+            noise_input=[[1.0]],
+            spectral_density=0.01,
+        )
         return pg.solve_moments(system, **KW).std_u[-1, 0]
 
     with pytest.raises(RuntimeError, match="non-finite values"):
@@ -49,8 +62,14 @@ def test_nonfinite_moments_under_jit_raise_too():
 
 
 def test_unconverged_fixed_point_names_the_time():
-    system = pg.System(mass=[[1.0]], stiffness=[[0.0]], damping=[[1.0]], load=[0.6], noise_input=[[1.0]],
-                       spectral_density=3.2e-3,
-                       contacts=pg.Contacts(direction=[[1.0]], stiffness=[100.0], clearance=[0.01]))
+    system = pg.System(
+        mass=[[1.0]],
+        stiffness=[[0.0]],
+        damping=[[1.0]],
+        load=[0.6],
+        noise_input=[[1.0]],
+        spectral_density=3.2e-3,
+        contacts=pg.Contacts(direction=[[1.0]], stiffness=[100.0], clearance=[0.01]),
+    )
     with pytest.raises(pg.SolverError, match=r"did not converge.* t = 0\.1 s.*max_iter"):
         pg.solve_moments(system, dt=0.01, n_steps=20, save_every=10, max_iter=1, rtol=1e-15)

@@ -179,7 +179,11 @@ def test_load_sharing_is_consistent_with_the_force_law(bench):
 def test_single_double_zones_switch_where_the_contact_ratio_says(bench, which):
     mesh = getattr(bench, which)
     t_pin, t_gear, pb = _path_by_circle_intersection(
-        mesh.z_pinion, mesh.z_gear, float(mesh.module), float(mesh.pressure_angle), float(mesh.addendum_coef),
+        mesh.z_pinion,
+        mesh.z_gear,
+        float(mesh.module),
+        float(mesh.pressure_angle),
+        float(mesh.addendum_coef),
         mesh.internal,
     )
     eps = (t_pin + t_gear) / pb
@@ -319,8 +323,12 @@ def test_float64_and_differentiable(bench, cycles):
     (_, sun), _ = cycles
     assert sun.stiffness.dtype == jnp.float64 and sun.pair_loads.dtype == jnp.float64
     mesh = bench.sun_planet
-    for x in (ms.contact_path(mesh).contact_ratio, ms.bending_stiffness(mesh, 0.02, "gear"),
-              ms.fillet_stiffness(mesh, 0.02, "pinion"), ms.hertz_force(1e-6, 0.02)):
+    for x in (
+        ms.contact_path(mesh).contact_ratio,
+        ms.bending_stiffness(mesh, 0.02, "gear"),
+        ms.fillet_stiffness(mesh, 0.02, "pinion"),
+        ms.hertz_force(1e-6, 0.02),
+    ):
         assert x.dtype == jnp.float64
 
     # gradient of the mesh stiffness w.r.t. the face width (a pytree leaf) vs a central difference

@@ -17,8 +17,15 @@ BS = B * np.sqrt(2 * np.pi * S0)[None, :]
 
 
 def linear_system():
-    return pg.System(mass=M, stiffness=K, damping=C, noise_input=B, spectral_density=S0,
-                     load=np.array([1.0, -2.0]), dof_names=["a", "b"])
+    return pg.System(
+        mass=M,
+        stiffness=K,
+        damping=C,
+        noise_input=B,
+        spectral_density=S0,
+        load=np.array([1.0, -2.0]),
+        dof_names=["a", "b"],
+    )
 
 
 def thesis_step_matrices(h, scheme):
@@ -57,7 +64,9 @@ def test_stationary_covariance_equals_discrete_lyapunov(scheme):
     res2 = pg.solve_moments(linear_system(), dt=h, n_steps=1, noise_scheme=scheme, initial_displacement=u0)
     n1 = np.block([[C + h / 2 * K, M], [M, -h / 2 * M]])
     f = np.array([1.0, -2.0])
-    mean_thesis = t1 @ np.concatenate([u0, np.zeros(2)]) + np.linalg.solve(n1, np.concatenate([h * f, np.zeros(2)]))
+    mean_thesis = t1 @ np.concatenate([u0, np.zeros(2)]) + np.linalg.solve(
+        n1, np.concatenate([h * f, np.zeros(2)])
+    )
     np.testing.assert_allclose(np.concatenate([res2.mean_u[-1], res2.mean_v[-1]]), mean_thesis, rtol=1e-12)
 
 
@@ -109,17 +118,31 @@ def test_linear_contact_with_zero_clearance_is_exactly_linear():
     """A b = 0 contact linearizes exactly (k_e = k, f_0 = k mu): same moments as putting k in K."""
     g = np.array([[1.0], [-1.0]])
     k_c = 150.0
-    with_contact = pg.System(mass=M, stiffness=K, damping=C, noise_input=B, spectral_density=S0,
-                             load=np.array([1.0, -2.0]),
-                             contacts=pg.Contacts(direction=g, stiffness=[k_c], clearance=[0.0]))
-    merged = pg.System(mass=M, stiffness=K + k_c * g @ g.T, damping=C, noise_input=B, spectral_density=S0,
-                       load=np.array([1.0, -2.0]))
+    with_contact = pg.System(
+        mass=M,
+        stiffness=K,
+        damping=C,
+        noise_input=B,
+        spectral_density=S0,
+        load=np.array([1.0, -2.0]),
+        contacts=pg.Contacts(direction=g, stiffness=[k_c], clearance=[0.0]),
+    )
+    merged = pg.System(
+        mass=M,
+        stiffness=K + k_c * g @ g.T,
+        damping=C,
+        noise_input=B,
+        spectral_density=S0,
+        load=np.array([1.0, -2.0]),
+    )
     for crit in ("force", "energy"):
         r1 = pg.solve_moments(with_contact, dt=0.01, n_steps=300, save_every=30, criterion=crit)
         r2 = pg.solve_moments(merged, dt=0.01, n_steps=300, save_every=30)
         np.testing.assert_allclose(r1.mean_u, r2.mean_u, rtol=1e-10, atol=1e-15)
         np.testing.assert_allclose(r1.std_u, r2.std_u, rtol=1e-10, atol=1e-15)
-        np.testing.assert_allclose(r1.mean_delta[:, 0], r2.mean_u[:, 0] - r2.mean_u[:, 1], rtol=1e-9, atol=1e-14)
+        np.testing.assert_allclose(
+            r1.mean_delta[:, 0], r2.mean_u[:, 0] - r2.mean_u[:, 1], rtol=1e-9, atol=1e-14
+        )
 
 
 @pytest.mark.parametrize("stiffness_form", ["constant", "function"])
@@ -137,8 +160,14 @@ def test_large_system_path_equals_discrete_lyapunov_of_thesis_matrices(stiffness
     g[5, 0], g[12, 0] = 1.0, -1.0
     kc = 150.0
     stiffness = k if stiffness_form == "constant" else pg.FourierSeries(k)
-    system = pg.System(mass=m, stiffness=stiffness, damping=c, noise_input=b, spectral_density=0.1,
-                       contacts=pg.Contacts(direction=g, stiffness=[kc], clearance=[0.0]))
+    system = pg.System(
+        mass=m,
+        stiffness=stiffness,
+        damping=c,
+        noise_input=b,
+        spectral_density=0.1,
+        contacts=pg.Contacts(direction=g, stiffness=[kc], clearance=[0.0]),
+    )
     res = pg.solve_moments(system, dt=h, n_steps=3000, save_every=3000, noise_scheme="newmark")
     k_all = k + kc * g @ g.T
     bs = b * np.sqrt(2 * np.pi * 0.1)
@@ -148,7 +177,9 @@ def test_large_system_path_equals_discrete_lyapunov_of_thesis_matrices(stiffness
     t1 = np.linalg.solve(n1, n2)
     t3 = np.linalg.solve(n1, np.block([[np.sqrt(h) * bs, z], [z, bs * h * np.sqrt(h) / np.sqrt(12.0)]]))
     p_disc = linalg.solve_discrete_lyapunov(t1, t3 @ t3.T)
-    np.testing.assert_allclose(np.concatenate([res.std_u[-1], res.std_v[-1]]), np.sqrt(np.diag(p_disc)), rtol=1e-8)
+    np.testing.assert_allclose(
+        np.concatenate([res.std_u[-1], res.std_v[-1]]), np.sqrt(np.diag(p_disc)), rtol=1e-8
+    )
 
 
 def backlash_chain(stiffness_form):
@@ -165,12 +196,20 @@ def backlash_chain(stiffness_form):
 
     def direction(t):  # contact 3 slides between two DOF pairs
         w = 0.5 * (1.0 + jnp.sin(5.0 * t))
-        return jnp.asarray(g0).at[:, 2].multiply(w) + (1.0 - w) * jnp.zeros((n, 3)).at[14, 2].set(1.0).at[17, 2].set(-1.0)
+        return jnp.asarray(g0).at[:, 2].multiply(w) + (1.0 - w) * jnp.zeros((n, 3)).at[14, 2].set(1.0).at[
+            17, 2
+        ].set(-1.0)
 
-    stiff = pg.FourierSeries(mean=[300.0, 250.0, 350.0], sin_coefficients=[[40.0, 20.0, 30.0]], frequency=13.0)
+    stiff = pg.FourierSeries(
+        mean=[300.0, 250.0, 350.0], sin_coefficients=[[40.0, 20.0, 30.0]], frequency=13.0
+    )
     return pg.System(
-        mass=m, stiffness=k if stiffness_form == "constant" else pg.FourierSeries(k), damping=c,
-        load=lambda t: jnp.zeros(n).at[2].set(3.0 + jnp.sin(2.0 * t)), noise_input=b, spectral_density=0.05,
+        mass=m,
+        stiffness=k if stiffness_form == "constant" else pg.FourierSeries(k),
+        damping=c,
+        load=lambda t: jnp.zeros(n).at[2].set(3.0 + jnp.sin(2.0 * t)),
+        noise_input=b,
+        spectral_density=0.05,
         contacts=pg.Contacts(direction=direction, stiffness=stiff, clearance=[0.004, 0.006, 0.005]),
     )
 
@@ -185,8 +224,14 @@ def test_constant_stiffness_path_equals_general_path_with_backlash(criterion, sc
     b = pg.solve_moments(backlash_chain("function"), **kw)
     assert a.mean_u.dtype == jnp.float64
     assert float(jnp.max(b.std_delta)) > 1e-3  # contacts open and close: a real nonlinear test
-    for x, y in [(a.mean_u, b.mean_u), (a.std_u, b.std_u), (a.std_v, b.std_v), (a.mean_delta, b.mean_delta),
-                 (a.std_delta, b.std_delta), (a.k_e, b.k_e)]:
+    for x, y in [
+        (a.mean_u, b.mean_u),
+        (a.std_u, b.std_u),
+        (a.std_v, b.std_v),
+        (a.mean_delta, b.mean_delta),
+        (a.std_delta, b.std_delta),
+        (a.k_e, b.k_e),
+    ]:
         np.testing.assert_allclose(x, y, rtol=0, atol=1e-10 * float(jnp.max(jnp.abs(y))))
 
 
@@ -198,8 +243,13 @@ def _contact_space_data(nc, seed):
     a = rng.standard_normal((nc, nc))
     y = rng.standard_normal((nc, nc))
     coupling = jnp.asarray(a @ a.T * 1e-10 + np.eye(nc) * 1e-9)
-    return _StepData(coupling, jnp.asarray(rng.standard_normal(nc) * 2e-5), jnp.asarray(y @ y.T * 1e-10),
-                     jnp.full(nc, 1e9), jnp.full(nc, 1e-5))
+    return _StepData(
+        coupling,
+        jnp.asarray(rng.standard_normal(nc) * 2e-5),
+        jnp.asarray(y @ y.T * 1e-10),
+        jnp.full(nc, 1e9),
+        jnp.full(nc, 1e-5),
+    )
 
 
 @pytest.mark.parametrize("criterion", ["force", "energy", "energy_origin"])
@@ -223,8 +273,9 @@ def test_closed_form_fixed_point_jacobian_equals_forward_mode_autodiff(criterion
     # the end terms are the law's linearization at z and (I + S K_e)^-1
     lin = law.linearize(z[:nc], z[nc:], data.inputs, data.clearance, criterion)
     np.testing.assert_allclose(terms.lin.k_e, lin.k_e, rtol=1e-15)
-    np.testing.assert_allclose(terms.r_inv @ (jnp.eye(nc) + data.coupling * lin.k_e[None, :]), jnp.eye(nc),
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        terms.r_inv @ (jnp.eye(nc) + data.coupling * lin.k_e[None, :]), jnp.eye(nc), atol=1e-12
+    )
 
 
 def _tangent_case(criterion, data):
@@ -235,8 +286,9 @@ def _tangent_case(criterion, data):
     from pgtjax.linearization import _end_terms
 
     nc = data.mean.shape[0]
-    d_data = jax.tree.map(lambda x: x * jnp.linspace(0.5, 1.5, x.size).reshape(x.shape) * 1e-2,
-                          _contact_space_data(nc, 6))
+    d_data = jax.tree.map(
+        lambda x: x * jnp.linspace(0.5, 1.5, x.size).reshape(x.shape) * 1e-2, _contact_space_data(nc, 6)
+    )
     law = pg.Backlash()
     z = jnp.array([2e-5, -1e-5, 0.3e-5, 1.5e-5, 1e-5, 0.5e-5, 2e-5, 0.0])
     return law, z, _end_terms(law, nc, criterion, z, data), d_data
@@ -254,11 +306,14 @@ def test_implicit_tangent_of_end_terms_equals_autodiff(criterion):
     nc = 4
     data = _contact_space_data(nc, 5)
     law, z, terms, d_data = _tangent_case(criterion, data)
-    _, (d_z, d_terms) = jax.jvp(lambda d: _implicit_solution(z, terms, d, law, nc, criterion), (data,), (d_data,))
+    _, (d_z, d_terms) = jax.jvp(
+        lambda d: _implicit_solution(z, terms, d, law, nc, criterion), (data,), (d_data,)
+    )
     _, d_terms_ad = jax.jvp(lambda zz, dd: _end_terms(law, nc, criterion, zz, dd), (z, data), (d_z, d_data))
     for got, want in zip(jax.tree.leaves(d_terms), jax.tree.leaves(d_terms_ad)):
         assert got.dtype == jnp.float64
         np.testing.assert_allclose(got, want, rtol=1e-10, atol=1e-12 * float(jnp.max(jnp.abs(want))))
+
 
 @pytest.mark.parametrize("case", ["general", "zero_std", "asymmetric_y"])
 @pytest.mark.parametrize("criterion", ["force", "energy", "energy_origin"])
@@ -275,8 +330,10 @@ def test_implicit_tangent_of_fixed_point_equals_autodiff_formula(criterion, case
     data = _contact_space_data(nc, 5)
     if case == "zero_std":
         keep = jnp.ones(nc).at[1].set(0.0)
-        data = data._replace(coupling=jnp.diag(jnp.diagonal(data.coupling)),
-                             covariance=data.covariance * keep[:, None] * keep[None, :])
+        data = data._replace(
+            coupling=jnp.diag(jnp.diagonal(data.coupling)),
+            covariance=data.covariance * keep[:, None] * keep[None, :],
+        )
     elif case == "asymmetric_y":
         data = data._replace(covariance=data.covariance * (1.0 + 1e-3 * jnp.triu(jnp.ones((nc, nc)), 1)))
     law, z, terms, d_data = _tangent_case(criterion, data)
@@ -293,8 +350,9 @@ def test_implicit_tangent_of_fixed_point_equals_autodiff_formula(criterion, case
 
 def test_bad_fixed_point_settings_raise():
     m, k = grounded_spring_chain(4, 100.0, 1)
-    system = pg.System(mass=m, stiffness=k, damping=0.01 * k, noise_input=np.eye(4)[:, :1],
-                       spectral_density=1.0)
+    system = pg.System(
+        mass=m, stiffness=k, damping=0.01 * k, noise_input=np.eye(4)[:, :1], spectral_density=1.0
+    )
     with pytest.raises(ValueError, match="rtol"):
         pg.solve_moments(system, dt=0.01, n_steps=4, rtol=0.0)
     with pytest.raises(ValueError, match="max_iter"):

@@ -16,13 +16,19 @@ KEY = jax.random.key(20261121)
 def time_varying_system():
     """2-DOF chain whose coupling spring is a b = 0 contact with a time-varying stiffness (Eq. 4.11 form),
     a time-varying load and a time-varying noise input."""
-    stiff = pg.FourierSeries(mean=[400.0], sin_coefficients=[[80.0]], cos_coefficients=[[30.0]], frequency=9.0)
+    stiff = pg.FourierSeries(
+        mean=[400.0], sin_coefficients=[[80.0]], cos_coefficients=[[30.0]], frequency=9.0
+    )
     return pg.System(
-        mass=np.diag([1.0, 1.5]), stiffness=np.diag([200.0, 100.0]), damping=np.array([[2.0, -0.5], [-0.5, 1.5]]),
+        mass=np.diag([1.0, 1.5]),
+        stiffness=np.diag([200.0, 100.0]),
+        damping=np.array([[2.0, -0.5], [-0.5, 1.5]]),
         load=lambda t: jnp.array([5.0, 0.0]) * jnp.sin(3.0 * t),
-        noise_input=lambda t: jnp.array([[1.0], [0.5]]) * (1.0 + 0.5 * jnp.sin(4.0 * t)),  # moving noise input
-        spectral_density=0.3, contacts=pg.Contacts(direction=[[1.0], [-1.0]], stiffness=stiff, clearance=[0.0],
-                                                   names=["coupling"]),
+        noise_input=lambda t: (
+            jnp.array([[1.0], [0.5]]) * (1.0 + 0.5 * jnp.sin(4.0 * t))
+        ),  # moving noise input
+        spectral_density=0.3,
+        contacts=pg.Contacts(direction=[[1.0], [-1.0]], stiffness=stiff, clearance=[0.0], names=["coupling"]),
         dof_names=["x1", "x2"],
     )
 
@@ -44,8 +50,16 @@ def test_linear_time_varying_mc_within_three_standard_errors(scheme):
 
 def test_same_key_same_statistics_whatever_the_chunk_size():
     system = time_varying_system()
-    kw = dict(dt=0.02, n_steps=40, save_every=10, key=KEY, n_samples=301, progress=False,
-              histograms={"u:x1": np.linspace(-0.2, 0.2, 21)}, histogram_times=[0.8])
+    kw = dict(
+        dt=0.02,
+        n_steps=40,
+        save_every=10,
+        key=KEY,
+        n_samples=301,
+        progress=False,
+        histograms={"u:x1": np.linspace(-0.2, 0.2, 21)},
+        histogram_times=[0.8],
+    )
     a = pg.monte_carlo(system, chunk_size=301, **kw)
     b = pg.monte_carlo(system, chunk_size=64, **kw)
     np.testing.assert_allclose(a.mean_u, b.mean_u, rtol=1e-12, atol=1e-15)
@@ -64,9 +78,16 @@ MASS, DAMP, KC, GAP, F0, S0 = 1.0, 1.0, 100.0, 0.01, 0.6, 3.2e-3
 
 
 def backlash_oscillator():
-    return pg.System(mass=[[MASS]], stiffness=[[0.0]], damping=[[DAMP]], load=[F0], noise_input=[[1.0]],
-                     spectral_density=S0, contacts=pg.Contacts(direction=[[1.0]], stiffness=[KC], clearance=[GAP]),
-                     dof_names=["x"])
+    return pg.System(
+        mass=[[MASS]],
+        stiffness=[[0.0]],
+        damping=[[DAMP]],
+        load=[F0],
+        noise_input=[[1.0]],
+        spectral_density=S0,
+        contacts=pg.Contacts(direction=[[1.0]], stiffness=[KC], clearance=[GAP]),
+        dof_names=["x"],
+    )
 
 
 def exact_stationary_moments():
@@ -77,7 +98,12 @@ def exact_stationary_moments():
     lo, hi, pts = -0.2, 0.2, [-GAP, GAP]
     z = integrate.quad(w, lo, hi, points=pts, epsabs=0, epsrel=1e-12, limit=400)[0]
     m1 = integrate.quad(lambda x: x * w(x), lo, hi, points=pts, epsabs=0, epsrel=1e-12, limit=400)[0] / z
-    m2 = integrate.quad(lambda x: (x - m1) ** 2 * w(x), lo, hi, points=pts, epsabs=0, epsrel=1e-12, limit=400)[0] / z
+    m2 = (
+        integrate.quad(lambda x: (x - m1) ** 2 * w(x), lo, hi, points=pts, epsabs=0, epsrel=1e-12, limit=400)[
+            0
+        ]
+        / z
+    )
     p_gap = integrate.quad(w, -GAP, GAP, epsabs=0, epsrel=1e-12)[0] / z
     return m1, np.sqrt(m2), p_gap
 
@@ -99,8 +125,10 @@ def test_backlash_oscillator_mc_matches_exact_stationary_density(capsys):
     assert float(mc.unconverged) == 0.0
     # how far SL is from the exact answer (reported, and bounded loosely)
     with capsys.disabled():
-        print(f"\nexact: mean {mean_x:.6e} std {std_x:.6e} P(gap) {p_gap:.4f}; "
-              f"MC: mean {float(mc.mean_u[-1, 0]):.6e} std {float(mc.std_u[-1, 0]):.6e} P(gap) {p_loss:.4f}")
+        print(
+            f"\nexact: mean {mean_x:.6e} std {std_x:.6e} P(gap) {p_gap:.4f}; "
+            f"MC: mean {float(mc.mean_u[-1, 0]):.6e} std {float(mc.std_u[-1, 0]):.6e} P(gap) {p_loss:.4f}"
+        )
         for crit in ("force", "energy"):
             sl = pg.solve_moments(backlash_oscillator(), criterion=crit, **kw)
             em = (float(sl.mean_u[-1, 0]) - mean_x) / std_x
@@ -115,8 +143,14 @@ def test_initial_covariance_and_observables_agree_with_the_recursion():
     obs = pg.Observables(lambda t: jnp.array([[jnp.cos(t), -jnp.sin(t)], [1.0, 1.0]]), names=["rot", "sum"])
     p0 = np.diag([0.01, 0.02, 0.3, 0.1]) ** 2
     p0[0, 1] = p0[1, 0] = 0.5 * 0.01 * 0.02
-    kw = dict(dt=0.02, n_steps=60, save_every=20, initial_covariance=p0, initial_displacement=[0.01, -0.02],
-              observables=obs)
+    kw = dict(
+        dt=0.02,
+        n_steps=60,
+        save_every=20,
+        initial_covariance=p0,
+        initial_displacement=[0.01, -0.02],
+        observables=obs,
+    )
     ref = pg.solve_moments(system, **kw)
     mc = pg.monte_carlo(system, n_samples=4000, key=KEY, progress=False, **kw)
     assert mc.observable_names == ("rot", "sum") and ref.mean_obs.shape == (4, 2)
@@ -160,9 +194,14 @@ def test_constant_stiffness_mc_equals_time_function_mc():
     g[[4, 11], [0, 1]], g[[5, 12], [0, 1]] = 1.0, -1.0
     noise = np.zeros((n, 1))
     noise[2, 0] = 1.0
-    common = dict(mass=m, damping=0.01 * k + 0.3 * m, load=np.eye(n)[2] * 2.0, noise_input=noise,
-                  spectral_density=0.05, contacts=pg.Contacts(direction=g, stiffness=[300.0, 300.0],
-                                                               clearance=[0.004, 0.005]))
+    common = dict(
+        mass=m,
+        damping=0.01 * k + 0.3 * m,
+        load=np.eye(n)[2] * 2.0,
+        noise_input=noise,
+        spectral_density=0.05,
+        contacts=pg.Contacts(direction=g, stiffness=[300.0, 300.0], clearance=[0.004, 0.005]),
+    )
     kw = dict(n_samples=200, key=KEY, dt=0.01, n_steps=100, save_every=10, progress=False)
     a = pg.monte_carlo(pg.System(stiffness=k, **common), **kw)
     b = pg.monte_carlo(pg.System(stiffness=pg.FourierSeries(k), **common), **kw)
@@ -189,11 +228,18 @@ def _chain_with_contacts(n=14, seed=5):
 
     noise = np.zeros((n, 2))
     noise[1, 0] = noise[n - 1, 1] = 1.0
-    contacts = pg.Contacts(direction=direction, stiffness=[900.0, 600.0], clearance=[0.003, 0.004],
-                           names=["a", "b"])
-    system = pg.System(mass=m, stiffness=k, damping=c, load=lambda t: jnp.eye(n)[1] * (1.5 + jnp.cos(5.0 * t)),
-                       noise_input=lambda t: jnp.asarray(noise) * (1.0 + 0.4 * jnp.sin(3.0 * t)),
-                       spectral_density=[0.04, 0.02], contacts=contacts)
+    contacts = pg.Contacts(
+        direction=direction, stiffness=[900.0, 600.0], clearance=[0.003, 0.004], names=["a", "b"]
+    )
+    system = pg.System(
+        mass=m,
+        stiffness=k,
+        damping=c,
+        load=lambda t: jnp.eye(n)[1] * (1.5 + jnp.cos(5.0 * t)),
+        noise_input=lambda t: jnp.asarray(noise) * (1.0 + 0.4 * jnp.sin(3.0 * t)),
+        spectral_density=[0.04, 0.02],
+        contacts=contacts,
+    )
     obs = pg.Observables(lambda t: jnp.stack([jnp.eye(n)[2] * jnp.cos(t), jnp.eye(n)[7]]), names=["c", "d"])
     return system, obs
 
@@ -210,15 +256,37 @@ def test_eigen_coordinates_reproduce_the_physical_coordinate_scheme(scheme):
     assert reason == "" and prop.condition < 1e4
     assert 0 < 2 * prop.n_pairs < 2 * n  # complex pairs and real eigenvalues
     p0 = np.diag(np.r_[np.full(n, 1e-3), np.full(n, 1e-2)]) ** 2
-    kw = dict(n_samples=300, key=KEY, dt=0.01, n_steps=120, save_every=8, progress=False, noise_scheme=scheme,
-              initial_displacement=np.full(n, 2e-3), initial_covariance=p0, observables=obs,
-              histograms={"force:a": np.linspace(-3.0, 3.0, 13)}, histogram_times=[0.4, 1.2])
+    kw = dict(
+        n_samples=300,
+        key=KEY,
+        dt=0.01,
+        n_steps=120,
+        save_every=8,
+        progress=False,
+        noise_scheme=scheme,
+        initial_displacement=np.full(n, 2e-3),
+        initial_covariance=p0,
+        observables=obs,
+        histograms={"force:a": np.linspace(-3.0, 3.0, 13)},
+        histogram_times=[0.4, 1.2],
+    )
     eig = pg.monte_carlo(system, propagation="eigen", **kw)
     phys = pg.monte_carlo(system, propagation="physical", **kw)
     assert (eig.propagation, phys.propagation) == ("eigen", "physical")
     assert 0.05 < float(jnp.mean(phys.contact_loss_probability[1:])) < 0.95  # the contacts open and close
-    for name in ("mean_u", "std_u", "mean_v", "std_v", "mean_delta", "std_delta", "force_mean", "force_std",
-                 "mean_obs", "std_obs", "contact_loss_probability"):
+    for name in (
+        "mean_u",
+        "std_u",
+        "mean_v",
+        "std_v",
+        "mean_delta",
+        "std_delta",
+        "force_mean",
+        "force_std",
+        "mean_obs",
+        "std_obs",
+        "contact_loss_probability",
+    ):
         a, b = np.asarray(getattr(eig, name)), np.asarray(getattr(phys, name))
         assert a.dtype == np.float64
         np.testing.assert_allclose(a, b, rtol=0, atol=1e-9 * np.max(np.abs(b)), err_msg=name)
@@ -233,8 +301,12 @@ def test_eigen_coordinates_refused_where_they_cannot_be_used(monkeypatch):
     kw = dict(n_samples=10, key=KEY, dt=0.02, n_steps=4, progress=False)
     varying = time_varying_system()  # constant K and C: accepted
     assert pg.monte_carlo(varying, **kw).propagation == "eigen"
-    varying_k = pg.System(mass=np.eye(2), stiffness=pg.FourierSeries(np.diag([200.0, 100.0])),
-                          damping=np.eye(2), noise_input=np.ones((2, 1)))
+    varying_k = pg.System(
+        mass=np.eye(2),
+        stiffness=pg.FourierSeries(np.diag([200.0, 100.0])),
+        damping=np.eye(2),
+        noise_input=np.ones((2, 1)),
+    )
     assert pg.monte_carlo(varying_k, **kw).propagation == "physical"
     with pytest.raises(ValueError, match="propagation='eigen'.*K or C depends on time"):
         pg.monte_carlo(varying_k, propagation="eigen", **kw)
@@ -277,7 +349,9 @@ def test_affine_piece_shortcut_equals_the_residual_iteration(case):
         coupling = jnp.asarray(np.diag(rng.uniform(1e-4, 3e-4, nc)) + 1e-6)  # S k ~ 0.1-0.5, weak coupling
         far = rng.uniform(1.5, 4.0, (500, nc)) * np.sign(rng.normal(size=(500, nc)))
         inside = rng.uniform(-0.5, 0.5, (500, nc))
-        delta_lin = jnp.asarray(np.where(rng.uniform(size=(500, nc)) < 0.3, inside, far * 3.0) * np.asarray(b))
+        delta_lin = jnp.asarray(
+            np.where(rng.uniform(size=(500, nc)) < 0.3, inside, far * 3.0) * np.asarray(b)
+        )
     else:
         a = rng.normal(size=(nc, nc))
         coupling = jnp.asarray(a @ a.T * 1e-3 + 1e-3 * np.eye(nc))
@@ -285,7 +359,9 @@ def test_affine_piece_shortcut_equals_the_residual_iteration(case):
     d_fast, ok_fast = solve_contacts_batch(delta_lin, coupling, k, b, pg.Backlash())
     d_ref, ok_ref = solve_contacts_batch(delta_lin, coupling, k, b, ResidualOnly())
     assert bool(jnp.all(ok_fast)) and bool(jnp.all(ok_ref))
-    kept = np.all(_pieces(np.asarray(d_ref), np.asarray(b)) == _pieces(np.asarray(delta_lin), np.asarray(b)), axis=1)
+    kept = np.all(
+        _pieces(np.asarray(d_ref), np.asarray(b)) == _pieces(np.asarray(delta_lin), np.asarray(b)), axis=1
+    )
     if case == "all_keep_their_piece":
         assert kept.all()
     else:

@@ -14,8 +14,12 @@ import pytest
 from nbclient import NotebookClient
 
 NOTEBOOKS = sorted((Path(__file__).parents[1] / "notebooks").glob("*.ipynb"))
-SMALL = {"PGTJAX_NOTEBOOK_SAMPLES": "600", "PGTJAX_NOTEBOOK_T_END": "0.006",
-         "PGTJAX_NOTEBOOK_PERIODS": "0.02", "PGTJAX_NOTEBOOK_OPT_STEPS": "3"}
+SMALL = {
+    "PGTJAX_NOTEBOOK_SAMPLES": "600",
+    "PGTJAX_NOTEBOOK_T_END": "0.006",
+    "PGTJAX_NOTEBOOK_PERIODS": "0.02",
+    "PGTJAX_NOTEBOOK_OPT_STEPS": "3",
+}
 # Figures each notebook shows (the same at every size), one image output each.
 EXPECTED_FIGURES = {
     "back_to_back": 2,  # run-up stiffness/TE/acceleration panels, STFT
@@ -31,8 +35,10 @@ def _outputs(nb):
 
 def image_count(nb) -> int:
     """PNG images the executed notebook displayed (``display_data`` or a cell's ``execute_result``)."""
-    return sum(o.output_type in ("display_data", "execute_result") and "image/png" in o.get("data", {})
-               for o in _outputs(nb))
+    return sum(
+        o.output_type in ("display_data", "execute_result") and "image/png" in o.get("data", {})
+        for o in _outputs(nb)
+    )
 
 
 def test_every_notebook_has_an_expected_figure_count():
@@ -47,8 +53,9 @@ def test_notebook_executes(path, monkeypatch):
     nb = nbformat.read(path, as_version=4)
     # a last cell reports the backend the notebook ended with: nothing may have switched away from inline
     nb.cells.append(nbformat.v4.new_code_cell("import matplotlib\nprint(matplotlib.get_backend())"))
-    client = NotebookClient(nb, timeout=600, kernel_name="python3",
-                            resources={"metadata": {"path": str(path.parent)}})
+    client = NotebookClient(
+        nb, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(path.parent)}}
+    )
     client.execute()
     backend = "".join(o.get("text", "") for o in nb.cells.pop().outputs if o.output_type == "stream")
     outputs = _outputs(nb)

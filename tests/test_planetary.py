@@ -36,7 +36,9 @@ def test_mass_spd_stiffness_symmetric_apart_from_wind_coupling():
     lay = pm.layout(p)
     s = pm.planetary(p)
     m = np.asarray(s.mass)
-    assert m.shape == (70, 70) and lay.n_dof == 70  # sun 3 + 3 planets 9 + carrier 3 + 18 nodes x 3 + filter 1
+    assert (
+        m.shape == (70, 70) and lay.n_dof == 70
+    )  # sun 3 + 3 planets 9 + carrier 3 + 18 nodes x 3 + filter 1
     np.testing.assert_array_equal(m, m.T)
     assert np.linalg.eigvalsh(m).min() > 0
     k = np.asarray(s.stiffness) + np.asarray(pm.mean_mesh_stiffness_matrix(p, lay, 1.7))
@@ -76,7 +78,9 @@ def test_ring_planet_deflection_and_rigid_rotation_limit():
     rigid_rotation[2::3] = phi  # section rotation
     for n, psi in enumerate(p.planet_angles()):
         col = np.asarray(g[:, p.n_planets + n])
-        np.testing.assert_allclose(col[ring] @ rigid_rotation, float(p.ring_pitch_radius) * np.cos(a) * phi, rtol=1e-10)
+        np.testing.assert_allclose(
+            col[ring] @ rigid_rotation, float(p.ring_pitch_radius) * np.cos(a) * phi, rtol=1e-10
+        )
         # independent evaluation of the ring part through the interpolation rows at the contact angle
         rows = np.asarray(ring_interpolation(p.ring, float(p.mesh.carrier_speed) * t + psi))
         u = np.asarray(jax.random.normal(jax.random.key(n), (lay.n_ring,)))
@@ -105,10 +109,16 @@ def test_ring_planet_deflection_and_rigid_rotation_limit():
 # k_su = k_cu = 0, k_ru = 1e9 N/m) and their natural frequencies (Hz), as copied in the test file
 # tests/test_lin_parker_1999.py of the public repository gfsReboucas/Drivetrain-python (we could not open the
 # paper itself; a helper reproduced every value independently, 3 N = 4 entries differ by <= 0.3 Hz).
-LP_ROTATIONAL = {3: [0, 1475.7, 1930.3, 2658.3, 7462.8, 11775.3], 4: [0, 1536.6, 1970.6, 2625.7, 7773.6, 13071.1],
-                 5: [0, 1567.4, 2006.1, 2614.8, 8065.4, 14253.1]}
-LP_TRANSLATIONAL = {3: [743.2, 1102.4, 1896.0, 2276.4, 6986.3, 9647.9], 4: [727.0, 1091.0, 1892.8, 2342.5, 7189.9, 10437.6],
-                    5: [710.0, 1072.0, 1888.1, 2425.3, 7382.4, 11172.3]}
+LP_ROTATIONAL = {
+    3: [0, 1475.7, 1930.3, 2658.3, 7462.8, 11775.3],
+    4: [0, 1536.6, 1970.6, 2625.7, 7773.6, 13071.1],
+    5: [0, 1567.4, 2006.1, 2614.8, 8065.4, 14253.1],
+}
+LP_TRANSLATIONAL = {
+    3: [743.2, 1102.4, 1896.0, 2276.4, 6986.3, 9647.9],
+    4: [727.0, 1091.0, 1892.8, 2342.5, 7189.9, 10437.6],
+    5: [710.0, 1072.0, 1888.1, 2425.3, 7382.4, 11172.3],
+}
 LP_PLANET = [1808.2, 5963.8, 6981.7]
 
 
@@ -116,23 +126,38 @@ def lin_parker_params(n_planets):
     d = copy.deepcopy(BASE)
     d["n_planets"] = n_planets
     d["ring_model"] = "rigid"
-    body = lambda m, j, k, kt: dict(mass=m, inertia=j, pitch_diameter=2.0, bearing_stiffness=k,  # noqa: E731
-                                    torsional_stiffness=kt)
+    body = lambda m, j, k, kt: dict(  # noqa: E731
+        mass=m,
+        inertia=j,
+        pitch_diameter=2.0,
+        bearing_stiffness=k,
+        torsional_stiffness=kt,
+    )
     d["sun"] = body(0.40, 0.39, 1e8, 0.0)
     d["planet"] = body(0.66, 0.61, 1e8, 0.0)
     d["carrier"] = dict(mass=5.43, inertia=6.29, bearing_stiffness=1e8, torsional_stiffness=0.0)
-    d["ring"].update(rigid_mass=2.35, rigid_inertia=3.0, rigid_bearing_stiffness=1e8, rigid_torsional_stiffness=1e9,
-                     pitch_diameter=2.0)
-    d["mesh"].update(sun_planet_stiffness=5e8, ring_planet_stiffness=5e8, pressure_angle_deg=24.6,
-                     stiffness_variation=0.0)
+    d["ring"].update(
+        rigid_mass=2.35,
+        rigid_inertia=3.0,
+        rigid_bearing_stiffness=1e8,
+        rigid_torsional_stiffness=1e9,
+        pitch_diameter=2.0,
+    )
+    d["mesh"].update(
+        sun_planet_stiffness=5e8, ring_planet_stiffness=5e8, pressure_angle_deg=24.6, stiffness_variation=0.0
+    )
     d["wind"]["turbulence_intensity"] = 0.0
     p = pm.load_params(d)
     # unit radii make the inertia entries I/r^2 as tabulated; the carrier's u_c = r_c theta_c likewise
     one = jnp.asarray(1.0)
     p = jax.tree_util.tree_map(lambda x: x, p)
     import equinox as eqx
-    p = eqx.tree_at(lambda q: (q.sun.radius, q.planet.radius, q.carrier.radius, q.rigid_ring.radius), p,
-                    (one, one, one, one))
+
+    p = eqx.tree_at(
+        lambda q: (q.sun.radius, q.planet.radius, q.carrier.radius, q.rigid_ring.radius),
+        p,
+        (one, one, one, one),
+    )
     return p
 
 
@@ -169,8 +194,13 @@ def rigid_equivalent(p):
     mr = basis.T @ np.asarray(m_ring) @ basis
     kr = basis.T @ np.asarray(k_ring) @ basis
     assert np.allclose(mr, np.diag(np.diag(mr)), atol=1e-9 * mr.max())
-    body = pm.Body(jnp.asarray(mr[0, 0]), jnp.asarray(mr[2, 2] * rb**2), jnp.asarray(rb), jnp.asarray(kr[0, 0]),
-                   jnp.asarray(kr[2, 2] * rb**2))
+    body = pm.Body(
+        jnp.asarray(mr[0, 0]),
+        jnp.asarray(mr[2, 2] * rb**2),
+        jnp.asarray(rb),
+        jnp.asarray(kr[0, 0]),
+        jnp.asarray(kr[2, 2] * rb**2),
+    )
     return dataclasses.replace(p, rigid_ring=body, ring_model="rigid")
 
 
@@ -206,10 +236,15 @@ def test_never_losing_contact_mc_within_three_standard_errors_of_recursion():
     se_mean, se_std = mc.standard_error("u")
     idx = [lay.sun(2), lay.planet(0, 1), lay.carrier(2), lay.ring_start + 1, lay.chi]
     for i in range(1, len(mc.times)):
-        assert np.all(np.abs(mc.mean_u[i, idx] - sl0.mean_u[i, idx]) < 3 * se_mean[i, idx] + 1e-12 * np.abs(sl0.mean_u[i, idx]))
+        assert np.all(
+            np.abs(mc.mean_u[i, idx] - sl0.mean_u[i, idx])
+            < 3 * se_mean[i, idx] + 1e-12 * np.abs(sl0.mean_u[i, idx])
+        )
         assert np.all(np.abs(mc.std_u[i, idx] - sl0.std_u[i, idx]) < 3 * se_std[i, idx])
     se_f = mc.force_std[1:] / np.sqrt(mc.n_samples)
-    assert np.all(np.abs(mc.force_mean[1:] - sl0.force_mean[1:]) < 3 * se_f + 1e-9 * np.abs(sl0.force_mean[1:]))
+    assert np.all(
+        np.abs(mc.force_mean[1:] - sl0.force_mean[1:]) < 3 * se_f + 1e-9 * np.abs(sl0.force_mean[1:])
+    )
 
 
 def test_gradients_wrt_rim_thickness_and_support_stiffness_match_finite_differences():
@@ -224,11 +259,20 @@ def test_gradients_wrt_rim_thickness_and_support_stiffness_match_finite_differen
 
     def response(x):
         thickness, support = x
-        ring = eqx.tree_at(lambda r: (r.thickness, r.radius, r.k_support_radial), base.ring,
-                           (thickness, base.ring_pitch_radius + thickness / 2, support))
+        ring = eqx.tree_at(
+            lambda r: (r.thickness, r.radius, r.k_support_radial),
+            base.ring,
+            (thickness, base.ring_pitch_radius + thickness / 2, support),
+        )
         p = eqx.tree_at(lambda q: q.ring, base, ring)
-        r = pg.solve_moments(pm.planetary(p), dt=0.0027, n_steps=30, save_every=30, rtol=1e-13,
-                             initial_covariance=pm.wind_filter_stationary_covariance(p, lay))
+        r = pg.solve_moments(
+            pm.planetary(p),
+            dt=0.0027,
+            n_steps=30,
+            save_every=30,
+            rtol=1e-13,
+            initial_covariance=pm.wind_filter_stationary_covariance(p, lay),
+        )
         return jnp.stack([r.std_u[-1, node], r.force_std[-1, r.contact("ring_planet1")]])
 
     x = jnp.array([0.128, 1.362e10])
@@ -253,12 +297,22 @@ def test_gradient_independent_of_save_interval_checkpointing_and_mode():
     node = lay.ring_start + 3 * 1  # radial DOF of ring node 1
 
     def response(x, save_every, checkpoint):
-        ring = eqx.tree_at(lambda r: (r.thickness, r.radius, r.k_support_radial), base.ring,
-                           (x[0], base.ring_pitch_radius + x[0] / 2, x[1]))
+        ring = eqx.tree_at(
+            lambda r: (r.thickness, r.radius, r.k_support_radial),
+            base.ring,
+            (x[0], base.ring_pitch_radius + x[0] / 2, x[1]),
+        )
         p = eqx.tree_at(lambda q: q.ring, base, ring)
         p0 = pm.wind_filter_stationary_covariance(p, lay)
-        r = pg.solve_moments(pm.planetary(p), dt=0.0027, n_steps=6, save_every=save_every, rtol=1e-13,
-                             checkpoint=checkpoint, initial_covariance=p0)
+        r = pg.solve_moments(
+            pm.planetary(p),
+            dt=0.0027,
+            n_steps=6,
+            save_every=save_every,
+            rtol=1e-13,
+            checkpoint=checkpoint,
+            initial_covariance=p0,
+        )
         return r.std_u[-1, node]  # the same time whatever the save interval
 
     x = jnp.array([0.128, 1.362e10])
@@ -312,7 +366,9 @@ def test_derived_stiffness_matches_appendix_3a3_blocks():
         pl = slice(lay.planet(n, 0), lay.planet(n, 0) + 3)
         np.testing.assert_allclose(k[sun, pl], k_s2, rtol=1e-12, atol=1e-3)
         k_pn = ksp * np.array([[sa * sa, ca * sa, -sa], [ca * sa, ca * ca, -ca], [-sa, -ca, 1.0]])  # Eq. 3.77
-        k_pn += krp * np.array([[sa * sa, -ca * sa, -sa], [-ca * sa, ca * ca, ca], [-sa, ca, 1.0]])  # Eq. 3.78
+        k_pn += krp * np.array(
+            [[sa * sa, -ca * sa, -sa], [-ca * sa, ca * ca, ca], [-sa, ca, 1.0]]
+        )  # Eq. 3.78
         np.testing.assert_allclose(k[pl, pl], k_pn + kp * np.diag([1.0, 1.0, 0.0]), rtol=1e-12, atol=1e-3)
         cs, sn = np.cos(psi), np.sin(psi)
         k_qn = kp * np.array([[-cs, -sn, 0.0], [sn, -cs, -1.0], [0.0, 0.0, 0.0]])  # Eq. 3.79
@@ -332,8 +388,9 @@ def test_study_grids_outputs_and_symmetry_zero_dofs(tmp_path):
     from pgtjax.studies import planetary as study
 
     p = small_params()
-    result = study.run_study(p, n_samples=200, periods=0.02, n_saves=4, sl_refine=3, key=jax.random.key(2),
-                             progress=False)
+    result = study.run_study(
+        p, n_samples=200, periods=0.02, n_saves=4, sl_refine=3, key=jax.random.key(2), progress=False
+    )
     st = result.settings
     assert st["sl_save_every"] * st["sl_refine"] == st["mc_save_every"] and st["sl_refine"] == 3
     assert st["n_steps"] == 4 * st["mc_save_every"]
@@ -345,8 +402,9 @@ def test_study_grids_outputs_and_symmetry_zero_dofs(tmp_path):
     direct = pg.solve_moments(system, save_every=mc_every, **kw)
     for field in ("mean_u", "std_u", "force_mean", "std_obs"):
         want = np.asarray(getattr(direct, field))
-        np.testing.assert_allclose(np.asarray(getattr(coarse, field)), want, rtol=1e-9,
-                                   atol=1e-12 * np.abs(want).max())
+        np.testing.assert_allclose(
+            np.asarray(getattr(coarse, field)), want, rtol=1e-9, atol=1e-12 * np.abs(want).max()
+        )
 
     quiet = study.roundoff_dofs(sl)
     assert {"sun_x", "sun_y", "carrier_x", "carrier_y"} <= set(quiet)
@@ -359,13 +417,23 @@ def test_study_grids_outputs_and_symmetry_zero_dofs(tmp_path):
     assert set(summary["mesh_force"]["per_mesh_mean"]) == set(sl.contact_names)
     assert summary["mesh_force"]["fraction_of_mesh_time_points_within_3_se"] == 1.0
 
-    sweeps = {"Rim thickness: test": study.parameter_sweep(p, study.rim_thickness_variants(p, (0.1, 0.15)),
-                                                           periods=0.02, n_saves=4, sl_refine=3)}
+    sweeps = {
+        "Rim thickness: test": study.parameter_sweep(
+            p, study.rim_thickness_variants(p, (0.1, 0.15)), periods=0.02, n_saves=4, sl_refine=3
+        )
+    }
     written = {f.name for f in study.write_outputs(result, tmp_path, sweeps=sweeps)}
-    assert {"planetary_dofs.png", "planetary_more_dofs.png", "planetary_ring_contact.png",
-            "planetary_mesh_forces.png", "planetary_mesh_forces_zoom.png", "planetary_rim_thickness.png",
-            "planetary_sl_force.npz",
-            "planetary_mc.npz", "summary.json"} <= written
+    assert {
+        "planetary_dofs.png",
+        "planetary_more_dofs.png",
+        "planetary_ring_contact.png",
+        "planetary_mesh_forces.png",
+        "planetary_mesh_forces_zoom.png",
+        "planetary_rim_thickness.png",
+        "planetary_sl_force.npz",
+        "planetary_mc.npz",
+        "summary.json",
+    } <= written
     back, attrs = pg.load_results(tmp_path / "planetary_sl_force.npz")
     assert back.dof_names == sl.dof_names and back.observable_names == sl.observable_names
     assert attrs["sl_refine"] == 3 and attrs["dt_s"] == result.dt
@@ -374,9 +442,15 @@ def test_study_grids_outputs_and_symmetry_zero_dofs(tmp_path):
     flagged = eqx.tree_at(lambda r: r.converged, sl, sl.converged.at[2].set(False))
     merged = study.every_nth_save(flagged, 3)
     assert not bool(merged.converged[1]) and bool(jnp.all(merged.converged[2:]))
-    for bad, match in [(dict(sl_refine=0), "sl_refine"), (dict(n_saves=0), "n_saves"), (dict(n_saves=2.5), "n_saves"),
-                       (dict(n_samples=1), "n_samples"), (dict(n_samples=-3), "0 \\(no Monte Carlo\\) or"),
-                       (dict(n_samples=10.0), "n_samples"), (dict(criteria=()), "criteria")]:
+    for bad, match in [
+        (dict(sl_refine=0), "sl_refine"),
+        (dict(n_saves=0), "n_saves"),
+        (dict(n_saves=2.5), "n_saves"),
+        (dict(n_samples=1), "n_samples"),
+        (dict(n_samples=-3), "0 \\(no Monte Carlo\\) or"),
+        (dict(n_samples=10.0), "n_samples"),
+        (dict(criteria=()), "criteria"),
+    ]:
         with pytest.raises(ValueError, match=match):
             study.run_study(p, **{"n_samples": 0, "periods": 0.02, **bad})
     with pytest.raises(ValueError, match="was not run"):
@@ -392,7 +466,9 @@ def test_study_grid_saves_sl_exactly_sl_refine_times_as_often(n_saves, sl_refine
     n_steps, mc_every, sl_every = study._grid(p, 0.0027, 1.0, n_saves, sl_refine)
     assert mc_every == sl_refine * sl_every and n_steps % mc_every == 0
     assert target - mc_every < n_steps <= target  # the whole steps of MC's grid that fit in the period
-    assert n_steps // mc_every >= min(n_saves, target // sl_refine)  # at least the saves asked for, if possible
+    assert n_steps // mc_every >= min(
+        n_saves, target // sl_refine
+    )  # at least the saves asked for, if possible
 
 
 def test_rigid_ring_study_with_another_criterion_writes_its_outputs(tmp_path):
@@ -400,11 +476,25 @@ def test_rigid_ring_study_with_another_criterion_writes_its_outputs(tmp_path):
     from pgtjax.studies import planetary as study
 
     p = pm.load_params({**copy.deepcopy(BASE), "ring_model": "rigid"})
-    result = study.run_study(p, n_samples=100, periods=0.01, n_saves=3, sl_refine=2, criteria=("energy",),
-                             key=jax.random.key(1), progress=False)
+    result = study.run_study(
+        p,
+        n_samples=100,
+        periods=0.01,
+        n_saves=3,
+        sl_refine=2,
+        criteria=("energy",),
+        key=jax.random.key(1),
+        progress=False,
+    )
     written = {f.name for f in study.write_outputs(result, tmp_path)}
-    assert {"planetary_dofs.png", "planetary_more_dofs.png", "planetary_mesh_forces.png",
-            "planetary_mesh_forces_zoom.png", "planetary_sl_energy.npz", "summary.json"} <= written
+    assert {
+        "planetary_dofs.png",
+        "planetary_more_dofs.png",
+        "planetary_mesh_forces.png",
+        "planetary_mesh_forces_zoom.png",
+        "planetary_sl_energy.npz",
+        "summary.json",
+    } <= written
     assert "planetary_ring_contact.png" not in written
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert list(summary["sl_vs_mc"]) == ["energy"] and summary["sl_vs_mc"]["energy"]["criterion"] == "energy"

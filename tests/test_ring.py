@@ -180,9 +180,21 @@ def test_assembly_mass_totals_and_supports():
     """Consistent masses of off-node teeth (Z != L) and the rim reproduce the exact rigid-body
     mass and polar inertia; K minus the bolt springs has the three rigid modes as null space."""
     n_el, R, h, b, mT, JT, Z = 24, 0.19, 0.018, 0.033, 0.028, 5.5e-7, 16
-    p = RingParams(R, h, b, E, RHO, n_elements=n_el, n_teeth=Z, tooth_mass=mT, tooth_inertia=JT,
-                   support_nodes=(0, 5), k_support_radial=1e8, k_support_tangential=2e8,
-                   k_support_torsional=0.0)
+    p = RingParams(
+        R,
+        h,
+        b,
+        E,
+        RHO,
+        n_elements=n_el,
+        n_teeth=Z,
+        tooth_mass=mT,
+        tooth_inertia=JT,
+        support_nodes=(0, 5),
+        k_support_radial=1e8,
+        k_support_tangential=2e8,
+        k_support_torsional=0.0,
+    )
     M, K, names = assemble_ring(p)
     M, K = np.asarray(M), np.asarray(K)
     assert M.dtype == np.float64 and K.dtype == np.float64 and M.shape == (3 * n_el, 3 * n_el)
@@ -207,8 +219,9 @@ def test_assembly_mass_totals_and_supports():
 
 
 def test_tooth_masses_are_nodal_when_one_tooth_per_node():
-    p = RingParams(0.19, 0.018, 0.033, E, RHO, n_elements=12, n_teeth=12, tooth_mass=0.028,
-                   tooth_inertia=5.5e-7)
+    p = RingParams(
+        0.19, 0.018, 0.033, E, RHO, n_elements=12, n_teeth=12, tooth_mass=0.028, tooth_inertia=5.5e-7
+    )
     mt = np.asarray(tooth_mass_matrix(p))
     np.testing.assert_allclose(mt, np.diag(np.tile([0.028, 0.028, 5.5e-7], 12)), atol=1e-14)
 
@@ -227,11 +240,16 @@ def _independent_displacement(p, theta, u):
 
     def H(t):
         c, s = np.cos(t), np.sin(t)
-        return np.array([[1, c, s, t * s, 0, t * c], [J * t, s, -c, s - t * c, 1, c + t * s],
-                         [J * t / R, 0, 0, 2 * s / R, 1 / R, 2 * c / R]])
+        return np.array(
+            [
+                [1, c, s, t * s, 0, t * c],
+                [J * t, s, -c, s - t * c, 1, c + t * s],
+                [J * t / R, 0, 0, 2 * s / R, 1 / R, 2 * c / R],
+            ]
+        )
 
     B = np.vstack([H(t1), H(t2)])
-    ul = np.concatenate([u[3 * e: 3 * e + 3], u[3 * ((e + 1) % L): 3 * ((e + 1) % L) + 3]])
+    ul = np.concatenate([u[3 * e : 3 * e + 3], u[3 * ((e + 1) % L) : 3 * ((e + 1) % L) + 3]])
     return H(th) @ np.linalg.solve(B, ul)
 
 
@@ -258,20 +276,28 @@ def test_load_at_node_and_wraparound_and_rigid_interpolation():
         for th in (2 * np.pi * k / L, 2 * np.pi * k / L + 2 * np.pi, 2 * np.pi * k / L - 4 * np.pi):
             F = np.asarray(ring_load_vector(p, th, 3.0, -2.0))
             expect = np.zeros(3 * L)
-            expect[3 * k: 3 * k + 2] = [3.0, -2.0]
+            expect[3 * k : 3 * k + 2] = [3.0, -2.0]
             np.testing.assert_allclose(F, expect, atol=1e-9)
-    np.testing.assert_allclose(np.asarray(ring_load_vector(p, 2 * np.pi, 1.0, 1.0)),
-                               np.asarray(ring_load_vector(p, 0.0, 1.0, 1.0)), atol=1e-9)
+    np.testing.assert_allclose(
+        np.asarray(ring_load_vector(p, 2 * np.pi, 1.0, 1.0)),
+        np.asarray(ring_load_vector(p, 0.0, 1.0, 1.0)),
+        atol=1e-9,
+    )
     th = 1.234
-    np.testing.assert_allclose(np.asarray(ring_load_vector(p, th + 6 * np.pi, 1.0, 2.0)),
-                               np.asarray(ring_load_vector(p, th, 1.0, 2.0)), atol=1e-9)
+    np.testing.assert_allclose(
+        np.asarray(ring_load_vector(p, th + 6 * np.pi, 1.0, 2.0)),
+        np.asarray(ring_load_vector(p, th, 1.0, 2.0)),
+        atol=1e-9,
+    )
     # rigid motions are interpolated exactly between the nodes
     tx, ty, rot = _rigid_global(p)
     for t in np.linspace(-1.0, 7.0, 9):
-        np.testing.assert_allclose(np.asarray(ring_displacement_at(p, t, jnp.asarray(tx))),
-                                   [-np.cos(t), -np.sin(t), 0.0], atol=1e-9)
-        np.testing.assert_allclose(np.asarray(ring_displacement_at(p, t, jnp.asarray(rot))),
-                                   [0.0, 0.2, 1.0], atol=1e-9)
+        np.testing.assert_allclose(
+            np.asarray(ring_displacement_at(p, t, jnp.asarray(tx))), [-np.cos(t), -np.sin(t), 0.0], atol=1e-9
+        )
+        np.testing.assert_allclose(
+            np.asarray(ring_displacement_at(p, t, jnp.asarray(rot))), [0.0, 0.2, 1.0], atol=1e-9
+        )
 
 
 def test_load_transfer_jit_vmap_grad():
@@ -293,6 +319,7 @@ def test_preformed_nodal_inverse_gives_the_same_shape_functions_and_radius_gradi
     """A moving mesh evaluates the shape functions at every step with the element inverse formed once
     (``ring_nodal_inverse``); values and their derivative in the ring radius must equal those formed on the
     spot, and the shape functions must still interpolate the nodes (N(0) = [I 0], N(angle) = [0 I])."""
+
     def rows(radius, theta, preformed):
         p = RingParams(radius, 0.015, 0.03, E, RHO, n_elements=12)
         return ring_interpolation(p, theta, ring_nodal_inverse(p) if preformed else None)
@@ -301,8 +328,9 @@ def test_preformed_nodal_inverse_gives_the_same_shape_functions_and_radius_gradi
     c = ring_nodal_inverse(p)
     assert c.shape == (6, 6) and c.dtype == jnp.float64
     np.testing.assert_allclose(ring_shape_at(p, 0.0, c)[1], np.eye(3, 6), atol=1e-12)
-    np.testing.assert_allclose(ring_shape_at(p, p.element_angle * (1 - 1e-15), c)[1], np.eye(3, 6, k=3),
-                               atol=1e-9)
+    np.testing.assert_allclose(
+        ring_shape_at(p, p.element_angle * (1 - 1e-15), c)[1], np.eye(3, 6, k=3), atol=1e-9
+    )
     for theta in (0.1, 1.3, 4.0):
         np.testing.assert_allclose(rows(0.2, theta, True), rows(0.2, theta, False), rtol=1e-12, atol=1e-14)
         d_pre = jax.jacfwd(rows)(0.2, theta, True)
@@ -315,8 +343,18 @@ def test_preformed_nodal_inverse_gives_the_same_shape_functions_and_radius_gradi
 # ------------------------------------------------------------------------------------------------
 def test_frequency_gradients_match_finite_differences():
     def freq(h, ks, mode=4):
-        p = RingParams(0.2, h, 0.03, E, RHO, n_elements=12, support_nodes=(0, 3, 7),
-                       k_support_radial=ks, k_support_tangential=ks, k_support_torsional=0.0)
+        p = RingParams(
+            0.2,
+            h,
+            0.03,
+            E,
+            RHO,
+            n_elements=12,
+            support_nodes=(0, 3, 7),
+            k_support_radial=ks,
+            k_support_tangential=ks,
+            k_support_torsional=0.0,
+        )
         return ring_natural_frequencies(p)[0][mode]
 
     vg = jax.jit(jax.value_and_grad(freq, argnums=(0, 1)))
@@ -333,6 +371,7 @@ def test_frequency_gradients_match_finite_differences():
 def test_gradient_of_degenerate_free_ring_frequency_is_finite_and_correct():
     """Free ring: rigid modes (lambda ~ 0) and degenerate n = 2 pair must not poison the gradient;
     thin-ring theory gives f ~ h, so d f / d h ~ f / h as a sanity bound."""
+
     def freq(h):
         return ring_natural_frequencies(RingParams(0.2, h, 0.03, E, RHO, n_elements=12))[0][3:5]
 

@@ -24,10 +24,13 @@ def _small(**kw):
 def _rigid(ring: RingParams, d):
     """Nodal DOFs of a rigid translation d = (dx, dy) [m] and of a unit rigid rotation (u_r inward)."""
     th = 2 * np.pi * np.arange(ring.n_elements) / ring.n_elements
-    trans = np.stack([-(d[0] * np.cos(th) + d[1] * np.sin(th)), -d[0] * np.sin(th) + d[1] * np.cos(th),
-                      np.zeros_like(th)], axis=1).ravel()
-    rot = np.stack([np.zeros_like(th), float(ring.radius) * np.ones_like(th), np.ones_like(th)],
-                   axis=1).ravel()
+    trans = np.stack(
+        [-(d[0] * np.cos(th) + d[1] * np.sin(th)), -d[0] * np.sin(th) + d[1] * np.cos(th), np.zeros_like(th)],
+        axis=1,
+    ).ravel()
+    rot = np.stack(
+        [np.zeros_like(th), float(ring.radius) * np.ones_like(th), np.ones_like(th)], axis=1
+    ).ravel()
     return trans, rot
 
 
@@ -52,8 +55,9 @@ def test_load_transfer_is_work_equivalent():
         b = np.asarray(loads.noise_matrix(t))
         trans, _ = _rigid(p.ring, (1.0, 0.0))
         unit_fx = -(-np.sin(alpha)) * np.cos(th) - (-np.cos(alpha)) * np.sin(th)
-        np.testing.assert_allclose(b.T @ trans, np.asarray(p.noise_intensity) * unit_fx,
-                                   rtol=1e-10, atol=1e-6)
+        np.testing.assert_allclose(
+            b.T @ trans, np.asarray(p.noise_intensity) * unit_fx, rtol=1e-10, atol=1e-6
+        )
 
 
 def test_validation_errors():
@@ -151,9 +155,30 @@ def test_cli_smoke(tmp_path, capsys):
     assert args.func(args) == 0
     out = json.loads(capsys.readouterr().out)
     assert len(out["modes"]) == 4 and out["modes"][0]["frequency_hz"] > 0
-    args = parser.parse_args(["ring-moving-load", "--n-elements", "12", "--modes", "12",
-                              "--revolutions", "0.02", "--dt", "2e-4", "--samples", "20", "--speeds", "30",
-                              "--sweep-speeds", "0", "--supports", "3", "--out", str(tmp_path), "--quiet"])
+    args = parser.parse_args(
+        [
+            "ring-moving-load",
+            "--n-elements",
+            "12",
+            "--modes",
+            "12",
+            "--revolutions",
+            "0.02",
+            "--dt",
+            "2e-4",
+            "--samples",
+            "20",
+            "--speeds",
+            "30",
+            "--sweep-speeds",
+            "0",
+            "--supports",
+            "3",
+            "--out",
+            str(tmp_path),
+            "--quiet",
+        ]
+    )
     assert args.func(args) == 0
     assert (tmp_path / "summary.json").is_file() and (tmp_path / "fig6_7_sweep.png").exists() is False
     assert (tmp_path / "fig6_4_mid_base.png").is_file() and (tmp_path / "modes_ch6_ring.png").is_file()

@@ -15,8 +15,15 @@ def _oscillator():
     """m x'' + c x' + k x = w with a zero-stiffness 'contact' of clearance b: its deflection is exactly
     Gaussian, so SL's P(|x| < b) is exact and Monte Carlo's count is an independent estimate of it."""
     contacts = pg.Contacts(direction=[[1.0]], stiffness=[0.0], clearance=[B], names=["gauge"])
-    return pg.System(mass=[[M]], stiffness=[[K]], damping=[[C]], noise_input=[[1.0]], spectral_density=S0,
-                     contacts=contacts, dof_names=["x"])
+    return pg.System(
+        mass=[[M]],
+        stiffness=[[K]],
+        damping=[[C]],
+        noise_input=[[1.0]],
+        spectral_density=S0,
+        contacts=contacts,
+        dof_names=["x"],
+    )
 
 
 KW = dict(dt=0.01, n_steps=4000, save_every=20)
@@ -57,12 +64,24 @@ def test_time_average_with_batch_means_covers_the_exact_stationary_moments():
     assert 0.5 * expected_se < float(avg.mean_se[0]) < 2.0 * expected_se
 
 
-@pytest.mark.parametrize("kwargs, match", [
-    (dict(what="w"), "what"), (dict(n_batches=1), "n_batches"), (dict(t_start=50.0), "window"),
-    (dict(t_start=3.5), "at least 2 per batch"),
-])
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        (dict(what="w"), "what"),
+        (dict(n_batches=1), "n_batches"),
+        (dict(t_start=50.0), "window"),
+        (dict(t_start=3.5), "at least 2 per batch"),
+    ],
+)
 def test_time_average_bad_input(kwargs, match):
-    mc = pg.monte_carlo(_oscillator(), n_samples=10, key=jax.random.key(0), progress=False, dt=0.01, n_steps=400,
-                        save_every=10)
+    mc = pg.monte_carlo(
+        _oscillator(),
+        n_samples=10,
+        key=jax.random.key(0),
+        progress=False,
+        dt=0.01,
+        n_steps=400,
+        save_every=10,
+    )
     with pytest.raises(ValueError, match=match):
         mc.time_average(**kwargs)

@@ -22,7 +22,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="pgtjax",
         description="Differentiable stochastic dynamics of planetary gear trains: statistical linearization, "
-                    "stochastic Newmark moments and Monte Carlo on JAX.",
+        "stochastic Newmark moments and Monte Carlo on JAX.",
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     planetary.register(sub)

@@ -14,26 +14,44 @@ from ._types import csv_floats, csv_names, nonneg_int, positive_float, positive_
 
 
 def _add_gear_pair_options(p: argparse.ArgumentParser, quick: bool) -> None:
-    p.add_argument("--params", type=Path, default=None,
-                   help="gear-pair parameter file (TOML, layout of pgtjax/params/gear_pair.toml); "
-                        "default: the embedded thesis Table 4.1 set")
-    p.add_argument("--samples", type=nonneg_int, default=2000 if quick else 20_000,
-                   help="Monte Carlo samples per regime (0 skips MC; default %(default)s)")
+    p.add_argument(
+        "--params",
+        type=Path,
+        default=None,
+        help="gear-pair parameter file (TOML, layout of pgtjax/params/gear_pair.toml); "
+        "default: the embedded thesis Table 4.1 set",
+    )
+    p.add_argument(
+        "--samples",
+        type=nonneg_int,
+        default=2000 if quick else 20_000,
+        help="Monte Carlo samples per regime (0 skips MC; default %(default)s)",
+    )
     p.add_argument("--dt", type=positive_float, default=1e-5, help="time step in s (default %(default)s)")
-    p.add_argument("--t-end", type=positive_float, default=0.04,
-                   help="simulated time in s (default %(default)s)")
-    p.add_argument("--saves", type=positive_int, default=80,
-                   help="number of saved times (default %(default)s)")
-    p.add_argument("--criteria", default="force,energy",
-                   help="comma-separated SL criteria among force, energy, energy_origin "
-                        "(default %(default)s)")
-    p.add_argument("--pdf-times", default="0.03",
-                   help="comma-separated times in s for the PDF of the mesh deflection (default %(default)s)")
+    p.add_argument(
+        "--t-end", type=positive_float, default=0.04, help="simulated time in s (default %(default)s)"
+    )
+    p.add_argument(
+        "--saves", type=positive_int, default=80, help="number of saved times (default %(default)s)"
+    )
+    p.add_argument(
+        "--criteria",
+        default="force,energy",
+        help="comma-separated SL criteria among force, energy, energy_origin (default %(default)s)",
+    )
+    p.add_argument(
+        "--pdf-times",
+        default="0.03",
+        help="comma-separated times in s for the PDF of the mesh deflection (default %(default)s)",
+    )
     p.add_argument("--seed", type=int, default=0, help="PRNG seed of the Monte Carlo (default %(default)s)")
-    p.add_argument("--chunk-size", type=nonneg_int, default=10_000,
-                   help="MC samples per compiled batch; bounds memory (default %(default)s)")
-    p.add_argument("--out", type=Path, default=None,
-                   help="output folder (default: pgtjax-output/gear_pair)")
+    p.add_argument(
+        "--chunk-size",
+        type=nonneg_int,
+        default=10_000,
+        help="MC samples per compiled batch; bounds memory (default %(default)s)",
+    )
+    p.add_argument("--out", type=Path, default=None, help="output folder (default: pgtjax-output/gear_pair)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
@@ -45,13 +63,22 @@ def _run_gear_pair(args) -> int:
     params, regimes = study.load_inputs(args.params)
     out = args.out or Path("pgtjax-output") / "gear_pair"
     criteria = csv_names(args.criteria)
-    print(study.format_header(regimes, criteria=criteria, n_samples=args.samples, dt=args.dt,
-                              t_end=args.t_end))
+    print(
+        study.format_header(regimes, criteria=criteria, n_samples=args.samples, dt=args.dt, t_end=args.t_end)
+    )
     start = time.perf_counter()
     result = study.run_study(
-        params, regimes=regimes, criteria=criteria, n_samples=args.samples, dt=args.dt, t_end=args.t_end,
-        n_saves=args.saves, pdf_times=csv_floats(args.pdf_times), key=jax.random.key(args.seed),
-        chunk_size=args.chunk_size, progress=not args.quiet,
+        params,
+        regimes=regimes,
+        criteria=criteria,
+        n_samples=args.samples,
+        dt=args.dt,
+        t_end=args.t_end,
+        n_saves=args.saves,
+        pdf_times=csv_floats(args.pdf_times),
+        key=jax.random.key(args.seed),
+        chunk_size=args.chunk_size,
+        progress=not args.quiet,
     )
     written = study.write_outputs(result, out)
     if args.samples:
@@ -78,22 +105,25 @@ def _run_modal(args) -> int:
 
 def register(subparsers) -> None:
     """Add ``gear-pair``, ``gear-pair-step`` and ``gear-pair-modal`` to an argparse subparsers object."""
-    gear = subparsers.add_parser("gear-pair",
-                                 help="thesis ch. 4: gear pair with backlash, SL vs MC in three regimes")
+    gear = subparsers.add_parser(
+        "gear-pair", help="thesis ch. 4: gear pair with backlash, SL vs MC in three regimes"
+    )
     _add_gear_pair_options(gear, quick=False)
     gear.set_defaults(func=_run_gear_pair)
 
-    step = subparsers.add_parser("gear-pair-step",
-                                 help="time-step convergence study of the gear-pair SL moments")
+    step = subparsers.add_parser(
+        "gear-pair-step", help="time-step convergence study of the gear-pair SL moments"
+    )
     step.add_argument("--params", type=Path, default=None, help="gear-pair parameter file (TOML)")
     step.add_argument("--dts", default="4e-5,2e-5,1e-5,5e-6,2.5e-6", help="comma-separated steps in s")
     step.add_argument("--t-end", type=positive_float, default=0.04, help="simulated time in s")
     step.add_argument("--json", action="store_true", help="print JSON instead of a table")
     step.set_defaults(func=_run_step_study)
 
-    modal = subparsers.add_parser("gear-pair-modal",
-                                  help="natural frequencies and mode shapes of the gear pair "
-                                       "(mesh closed at its mean stiffness)")
+    modal = subparsers.add_parser(
+        "gear-pair-modal",
+        help="natural frequencies and mode shapes of the gear pair (mesh closed at its mean stiffness)",
+    )
     modal.add_argument("--params", type=Path, default=None, help="gear-pair parameter file (TOML)")
     modal.add_argument("--json", action="store_true", help="print JSON instead of a table")
     modal.set_defaults(func=_run_modal)

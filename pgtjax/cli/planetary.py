@@ -14,23 +14,42 @@ from ._types import csv_names, nonneg_int, positive_float, positive_int
 
 
 def _add_planetary_options(p: argparse.ArgumentParser, quick: bool) -> None:
-    p.add_argument("--params", type=Path, default=None,
-                   help="planetary parameter file (TOML, layout of pgtjax/params/planetary.toml); "
-                        "default: the embedded thesis Tables 3.1-3.2 set")
-    p.add_argument("--samples", type=nonneg_int, default=300 if quick else 100_000,
-                   help="Monte Carlo samples (0 skips MC; default %(default)s; the thesis used 100,000)")
-    p.add_argument("--periods", type=positive_float, default=1.0,
-                   help="carrier periods simulated (default 1)")
+    p.add_argument(
+        "--params",
+        type=Path,
+        default=None,
+        help="planetary parameter file (TOML, layout of pgtjax/params/planetary.toml); "
+        "default: the embedded thesis Tables 3.1-3.2 set",
+    )
+    p.add_argument(
+        "--samples",
+        type=nonneg_int,
+        default=300 if quick else 100_000,
+        help="Monte Carlo samples (0 skips MC; default %(default)s; the thesis used 100,000)",
+    )
+    p.add_argument(
+        "--periods", type=positive_float, default=1.0, help="carrier periods simulated (default 1)"
+    )
     p.add_argument("--dt", type=positive_float, default=0.0027, help="time step in s (thesis: 0.0027)")
-    p.add_argument("--saves", type=positive_int, default=200,
-                   help="Monte Carlo saved times (default %(default)s)")
-    p.add_argument("--sl-refine", type=positive_int, default=10,
-                   help="SL is saved this many times as often as MC (default %(default)s: resolves the "
-                        "meshing frequency)")
-    p.add_argument("--criteria", default="force",
-                   help="comma-separated SL criteria (force, energy, energy_origin)")
-    p.add_argument("--ring-model", choices=("elastic", "rigid"), default=None,
-                   help="override the parameter file's ring model")
+    p.add_argument(
+        "--saves", type=positive_int, default=200, help="Monte Carlo saved times (default %(default)s)"
+    )
+    p.add_argument(
+        "--sl-refine",
+        type=positive_int,
+        default=10,
+        help="SL is saved this many times as often as MC (default %(default)s: resolves the "
+        "meshing frequency)",
+    )
+    p.add_argument(
+        "--criteria", default="force", help="comma-separated SL criteria (force, energy, energy_origin)"
+    )
+    p.add_argument(
+        "--ring-model",
+        choices=("elastic", "rigid"),
+        default=None,
+        help="override the parameter file's ring model",
+    )
     p.add_argument("--elements", type=nonneg_int, default=None, help="override the number of ring elements")
     p.add_argument("--no-sweeps", action="store_true", help="skip the rim-thickness and support studies")
     p.add_argument("--no-sensitivities", action="store_true", help="skip the autodiff sensitivities")
@@ -54,19 +73,31 @@ def _run_planetary(args) -> int:
     params = _params(args)
     out = args.out or Path("pgtjax-output") / "planetary"
     criteria = csv_names(args.criteria)
-    print(study.format_header(params, periods=args.periods, dt=args.dt, criteria=criteria,
-                              n_samples=args.samples))
+    print(
+        study.format_header(
+            params, periods=args.periods, dt=args.dt, criteria=criteria, n_samples=args.samples
+        )
+    )
     start = time.perf_counter()
     step = lambda msg: print(f"[{time.perf_counter() - start:7.1f} s] {msg}", flush=True)  # noqa: E731
     step("SL + moment recursion" + (" and Monte Carlo" if args.samples else ""))
-    result = study.run_study(params, n_samples=args.samples, dt=args.dt, periods=args.periods,
-                             n_saves=args.saves, sl_refine=args.sl_refine, criteria=criteria,
-                             key=jax.random.key(args.seed), chunk_size=args.chunk_size,
-                             progress=not args.quiet)
+    result = study.run_study(
+        params,
+        n_samples=args.samples,
+        dt=args.dt,
+        periods=args.periods,
+        n_saves=args.saves,
+        sl_refine=args.sl_refine,
+        criteria=criteria,
+        key=jax.random.key(args.seed),
+        chunk_size=args.chunk_size,
+        progress=not args.quiet,
+    )
     sweeps = None
     if not args.no_sweeps:
-        sweeps = study.standard_sweeps(params, dt=args.dt, periods=args.periods, n_saves=args.saves,
-                                       sl_refine=args.sl_refine, say=step)
+        sweeps = study.standard_sweeps(
+            params, dt=args.dt, periods=args.periods, n_saves=args.saves, sl_refine=args.sl_refine, say=step
+        )
     step("modal analysis")
     modal = study.modal_table(params)
     sens = None if args.no_sensitivities else study.elastic_sensitivities(params, dt=args.dt, say=step)
@@ -95,24 +126,33 @@ def _full(args):
 
 def register(subparsers) -> None:
     """Add ``run``, ``planetary`` and ``planetary-modal`` to an argparse subparsers object."""
-    run = subparsers.add_parser("run", help="the main job on the embedded default parameters: the ch. 3 "
-                                            "planetary study at a quick size (--full: the thesis's "
-                                            "100,000 MC samples)")
+    run = subparsers.add_parser(
+        "run",
+        help="the main job on the embedded default parameters: the ch. 3 "
+        "planetary study at a quick size (--full: the thesis's "
+        "100,000 MC samples)",
+    )
     _add_planetary_options(run, quick=True)
     run.add_argument("--full", action="store_true", help="thesis size: 100,000 MC samples")
     run.set_defaults(func=lambda a: _run_planetary(_full(a)))
 
-    plan = subparsers.add_parser("planetary", help="thesis ch. 3: planetary gear train with elastic ring, SL "
-                                                   "vs MC, rim thickness, supports, modes, sensitivities")
+    plan = subparsers.add_parser(
+        "planetary",
+        help="thesis ch. 3: planetary gear train with elastic ring, SL "
+        "vs MC, rim thickness, supports, modes, sensitivities",
+    )
     _add_planetary_options(plan, quick=False)
     plan.set_defaults(func=_run_planetary)
 
-    pmodal = subparsers.add_parser("planetary-modal",
-                                   help="natural frequencies and mode types of the planetary model")
+    pmodal = subparsers.add_parser(
+        "planetary-modal", help="natural frequencies and mode types of the planetary model"
+    )
     pmodal.add_argument("--params", type=Path, default=None, help="planetary parameter file (TOML)")
-    pmodal.add_argument("--ring-model", choices=("elastic", "rigid"), default=None,
-                        help="override the ring model")
-    pmodal.add_argument("--elements", type=nonneg_int, default=None,
-                        help="override the number of ring elements")
+    pmodal.add_argument(
+        "--ring-model", choices=("elastic", "rigid"), default=None, help="override the ring model"
+    )
+    pmodal.add_argument(
+        "--elements", type=nonneg_int, default=None, help="override the number of ring elements"
+    )
     pmodal.add_argument("--json", action="store_true", help="print JSON instead of a table")
     pmodal.set_defaults(func=_run_planetary_modal)

@@ -136,8 +136,6 @@ def _concrete(x) -> bool:
     return not isinstance(x, jax.core.Tracer)
 
 
-
-
 def _f64(x) -> Array:
     return jnp.asarray(x, dtype=jnp.float64)
 
@@ -231,11 +229,29 @@ def validate(p: BackToBackParams) -> None:
     check_range("carrier_radius", p.carrier_radius, lo=0.0, hi=10.0, lo_closed=False, unit="m")
     for name in ("sun_shaft_stiffness", "carrier_shaft_stiffness"):
         check_range(name, getattr(p, name), lo=0.0, hi=1e12, lo_closed=False, unit="N m/rad")
-    check_range("motor_shaft_stiffness", p.motor_shaft_stiffness, lo=0.0, hi=1e12, lo_closed=True, unit="N m/rad (0 detaches the motor)")
-    check_range("ring_support_stiffness", p.ring_support_stiffness, lo=0.0, hi=1e14, lo_closed=True, unit="N m/rad (0 frees the test ring)")
+    check_range(
+        "motor_shaft_stiffness",
+        p.motor_shaft_stiffness,
+        lo=0.0,
+        hi=1e12,
+        lo_closed=True,
+        unit="N m/rad (0 detaches the motor)",
+    )
+    check_range(
+        "ring_support_stiffness",
+        p.ring_support_stiffness,
+        lo=0.0,
+        hi=1e14,
+        lo_closed=True,
+        unit="N m/rad (0 frees the test ring)",
+    )
     check_range("half_backlash", p.half_backlash, lo=0.0, hi=1e-3, lo_closed=True, unit="m")
-    check_range("reaction_phase_offset", p.reaction_phase_offset, lo=-1e6, hi=1e6, lo_closed=False, unit="mesh cycles")
-    check_range("damping_ratio", p.damping_ratio, lo=0.0, hi=1.0, lo_closed=True, unit="(fraction of critical)")
+    check_range(
+        "reaction_phase_offset", p.reaction_phase_offset, lo=-1e6, hi=1e6, lo_closed=False, unit="mesh cycles"
+    )
+    check_range(
+        "damping_ratio", p.damping_ratio, lo=0.0, hi=1.0, lo_closed=True, unit="(fraction of critical)"
+    )
     check_range("rayleigh_f1", p.rayleigh_f1, lo=0.0, hi=1e6, lo_closed=False, unit="Hz")
     check_range("rayleigh_f2", p.rayleigh_f2, lo=0.0, hi=1e6, lo_closed=False, unit="Hz")
     if (
@@ -246,7 +262,9 @@ def validate(p: BackToBackParams) -> None:
         raise ValueError(
             f"`rayleigh_f2` must exceed `rayleigh_f1`; got {p.rayleigh_f2!r} <= {p.rayleigh_f1!r}"
         )
-    check_range("sun_torque", p.sun_torque, lo=0.0, hi=1e5, lo_closed=True, unit="N m (circulating test-sun torque)")
+    check_range(
+        "sun_torque", p.sun_torque, lo=0.0, hi=1e5, lo_closed=True, unit="N m (circulating test-sun torque)"
+    )
     check_range("torque_end", p.torque_end, lo=0.0, hi=1e5, lo_closed=True, unit="N m")
     check_range("speed_start", p.speed_start, lo=0.0, hi=2e3, lo_closed=True, unit="rad/s")
     check_range("speed_end", p.speed_end, lo=0.0, hi=2e3, lo_closed=True, unit="rad/s")
@@ -254,8 +272,6 @@ def validate(p: BackToBackParams) -> None:
     check_range("ramp_duration", p.ramp_duration, lo=0.0, hi=1e4, lo_closed=False, unit="s")
     if not isinstance(p.table_points, int | np.integer) or not 16 <= int(p.table_points) <= 100_000:
         raise ValueError(f"`table_points` must be an integer in [16, 100000]; got {p.table_points!r}")
-
-
 
 
 def load_params(path: str | Path | None = None, **overrides) -> BackToBackParams:
@@ -635,8 +651,10 @@ class HertzianMesh(ContactLaw):
         """The mean tangent mesh stiffness under the nominal load (N/m): what modal analysis uses for a mesh
         (the modes of the mean mesh stiffness) and the start of the static solve."""
         if self.reference_stiffness is None:
-            raise ValueError("this HertzianMesh has no `reference_stiffness`; build it with "
-                             "`back_to_back.hertzian_mesh_law(params)`, which sets the mean mesh stiffness")
+            raise ValueError(
+                "this HertzianMesh has no `reference_stiffness`; build it with "
+                "`back_to_back.hertzian_mesh_law(params)`, which sets the mean mesh stiffness"
+            )
         return jnp.broadcast_to(self.reference_stiffness, jnp.shape(b))
 
 

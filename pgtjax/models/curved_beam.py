@@ -198,9 +198,7 @@ def _nodal_inverse(angle, radius, delta):
     """``C`` (6 x 6) mapping nodal DOFs to the coefficients of the recombined basis (``(B T)^-1``)."""
     h = 0.5 * angle
     scale = jnp.stack([1.0, 1.0, radius, 1.0, 1.0, radius])  # make the rotation rows dimensionless
-    bt = jnp.concatenate(
-        [_recombined(-h, h, radius, delta)[0], _recombined(h, h, radius, delta)[0]], axis=0
-    )
+    bt = jnp.concatenate([_recombined(-h, h, radius, delta)[0], _recombined(h, h, radius, delta)[0]], axis=0)
     return jnp.linalg.solve(scale[:, None] * bt, jnp.diag(scale))
 
 
@@ -308,4 +306,3 @@ def rigid_body_modes(angle, radius):
             )
         )
     return jnp.concatenate(cols, axis=0)
-

@@ -85,8 +85,16 @@ class GearPairParams(eqx.Module):
 
 
 _POSITIVE = (
-    "mass_1", "mass_2", "inertia_1", "inertia_2", "pitch_radius_1", "pitch_radius_2", "bearing_stiffness_1",
-    "bearing_stiffness_2", "mesh_stiffness", "pinion_speed_rpm",
+    "mass_1",
+    "mass_2",
+    "inertia_1",
+    "inertia_2",
+    "pitch_radius_1",
+    "pitch_radius_2",
+    "bearing_stiffness_1",
+    "bearing_stiffness_2",
+    "mesh_stiffness",
+    "pinion_speed_rpm",
 )
 
 
@@ -102,8 +110,10 @@ def validate(p: GearPairParams) -> None:
     if not isinstance(p, jax.core.Tracer) and _concrete(p.mesh_stiffness):
         amplitude = float(np.sum(np.abs(np.asarray(p.mesh_sin))) + np.sum(np.abs(np.asarray(p.mesh_cos))))
         if amplitude >= float(p.mesh_stiffness):
-            raise ValueError("`mesh_sin`/`mesh_cos`: the harmonic amplitudes must sum to less than "
-                             f"`mesh_stiffness` so that k_h(t) > 0; got {amplitude} >= {float(p.mesh_stiffness)}")
+            raise ValueError(
+                "`mesh_sin`/`mesh_cos`: the harmonic amplitudes must sum to less than "
+                f"`mesh_stiffness` so that k_h(t) > 0; got {amplitude} >= {float(p.mesh_stiffness)}"
+            )
     if p.teeth_1 < 1 or p.teeth_2 < 1:
         raise ValueError("`teeth_1` and `teeth_2` must be integers >= 1")
 
@@ -117,8 +127,6 @@ def default_params() -> GearPairParams:
     return load_params(_params.path("gear_pair.toml"))
 
 
-
-
 def load_params(source) -> GearPairParams:
     """Read a gear-pair parameter file (TOML, same layout as the embedded ``gear_pair.toml``) or a dict."""
     if isinstance(source, (str, Path)):
@@ -130,15 +138,27 @@ def load_params(source) -> GearPairParams:
         f = lambda x: jnp.asarray(x, dtype=jnp.float64)  # noqa: E731
         rayleigh = (float(d["alpha"]), float(d["beta"])) if "alpha" in d else None
         p = GearPairParams(
-            mass_1=f(g["mass_1"]), mass_2=f(g["mass_2"]), inertia_1=f(g["inertia_1"]), inertia_2=f(g["inertia_2"]),
-            pitch_radius_1=f(g["pitch_radius_1"]), pitch_radius_2=f(g["pitch_radius_2"]),
-            bearing_stiffness_1=f(g["bearing_stiffness_1"]), bearing_stiffness_2=f(g["bearing_stiffness_2"]),
-            mesh_stiffness=f(m["mean_stiffness"]), mesh_sin=f(m.get("sin_coefficients", [])),
-            mesh_cos=f(m.get("cos_coefficients", [])), pinion_speed_rpm=f(m["pinion_speed_rpm"]),
-            half_backlash=f(m["half_backlash"]), damping_ratio=f(d.get("damping_ratio", 0.05)),
-            noise_amplitude=f(e["noise_amplitude"]), spectral_density=f(e["spectral_density"]),
-            torque_in=f(e["torque_in"]), torque_out=f(e["torque_out"]),
-            teeth_1=int(g["teeth_1"]), teeth_2=int(g["teeth_2"]), rayleigh=rayleigh,
+            mass_1=f(g["mass_1"]),
+            mass_2=f(g["mass_2"]),
+            inertia_1=f(g["inertia_1"]),
+            inertia_2=f(g["inertia_2"]),
+            pitch_radius_1=f(g["pitch_radius_1"]),
+            pitch_radius_2=f(g["pitch_radius_2"]),
+            bearing_stiffness_1=f(g["bearing_stiffness_1"]),
+            bearing_stiffness_2=f(g["bearing_stiffness_2"]),
+            mesh_stiffness=f(m["mean_stiffness"]),
+            mesh_sin=f(m.get("sin_coefficients", [])),
+            mesh_cos=f(m.get("cos_coefficients", [])),
+            pinion_speed_rpm=f(m["pinion_speed_rpm"]),
+            half_backlash=f(m["half_backlash"]),
+            damping_ratio=f(d.get("damping_ratio", 0.05)),
+            noise_amplitude=f(e["noise_amplitude"]),
+            spectral_density=f(e["spectral_density"]),
+            torque_in=f(e["torque_in"]),
+            torque_out=f(e["torque_out"]),
+            teeth_1=int(g["teeth_1"]),
+            teeth_2=int(g["teeth_2"]),
+            rayleigh=rayleigh,
         )
     except KeyError as err:
         raise ValueError(f"gear-pair parameter file is missing the entry {err}") from None
@@ -188,7 +208,9 @@ def rayleigh_coefficients(p: GearPairParams):
 def mesh_stiffness_function(p: GearPairParams) -> FourierSeries:
     """k_h(t) of Eq. 4.11 (N/m)."""
     return FourierSeries(
-        mean=p.mesh_stiffness[None], sin_coefficients=p.mesh_sin[:, None], cos_coefficients=p.mesh_cos[:, None],
+        mean=p.mesh_stiffness[None],
+        sin_coefficients=p.mesh_sin[:, None],
+        cos_coefficients=p.mesh_cos[:, None],
         frequency=p.mesh_frequency,
     )
 
@@ -212,7 +234,9 @@ def gear_pair(p: GearPairParams | None = None) -> System:
         load=jnp.stack([zero, zero, torsional_load]),
         noise_input=jnp.stack([zero, zero, p.noise_amplitude])[:, None],
         spectral_density=p.spectral_density,
-        contacts=Contacts(g, mesh_stiffness_function(p), p.half_backlash[None], names=CONTACT_NAMES, law=Backlash()),
+        contacts=Contacts(
+            g, mesh_stiffness_function(p), p.half_backlash[None], names=CONTACT_NAMES, law=Backlash()
+        ),
         dof_names=DOF_NAMES,
         dof_units=("m", "m", "m"),
     )

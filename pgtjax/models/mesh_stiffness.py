@@ -162,8 +162,6 @@ def _is_concrete(x) -> bool:
     return not isinstance(x, jax.core.Tracer)
 
 
-
-
 def _f64(x) -> Array:
     return jnp.asarray(x, dtype=jnp.float64)
 
@@ -232,8 +230,12 @@ class SpurMesh(eqx.Module):
             raise ValueError(f"`n_segments` must be an integer in [4, 2000]; got {n_segments!r}")
         if modulus_kind not in _MODULUS_KINDS:
             raise ValueError(f"`modulus_kind` must be one of {_MODULUS_KINDS}; got {modulus_kind!r}")
-        check_range("module", module, lo=0.0, hi=0.1, lo_closed=False, unit="m (SI metres, e.g. 4.23e-3 for 4.23 mm)")
-        check_range("pressure_angle", pressure_angle, lo=0.17, hi=0.61, lo_closed=False, unit="rad (10 to 35 degrees)")
+        check_range(
+            "module", module, lo=0.0, hi=0.1, lo_closed=False, unit="m (SI metres, e.g. 4.23e-3 for 4.23 mm)"
+        )
+        check_range(
+            "pressure_angle", pressure_angle, lo=0.17, hi=0.61, lo_closed=False, unit="rad (10 to 35 degrees)"
+        )
         check_range("face_width", face_width, lo=0.0, hi=1.0, lo_closed=False, unit="m")
         check_range("youngs_modulus", youngs_modulus, lo=1e9, hi=1e12, lo_closed=False, unit="Pa")
         check_range("poisson_ratio", poisson_ratio, lo=0.0, hi=0.5, lo_closed=False, hi_closed=False, unit="")
@@ -245,8 +247,17 @@ class SpurMesh(eqx.Module):
                     f"`dedendum_coef` must exceed `addendum_coef` (root clearance); "
                     f"got {dedendum_coef!r} <= {addendum_coef!r}"
                 )
-        check_range("hub_ratio_pinion", hub_ratio_pinion, lo=1.0, hi=10.0, lo_closed=False, unit="(r_root / r_bore)")
-        check_range("hub_ratio_gear", hub_ratio_gear, lo=1.0, hi=10.0, lo_closed=False, unit="(r_root / r_bore, rim ratio for a ring)")
+        check_range(
+            "hub_ratio_pinion", hub_ratio_pinion, lo=1.0, hi=10.0, lo_closed=False, unit="(r_root / r_bore)"
+        )
+        check_range(
+            "hub_ratio_gear",
+            hub_ratio_gear,
+            lo=1.0,
+            hi=10.0,
+            lo_closed=False,
+            unit="(r_root / r_bore, rim ratio for a ring)",
+        )
         check_range("shear_factor", shear_factor, lo=0.0, hi=1.0, lo_closed=False, unit="")
 
         self.z_pinion = int(z_pinion)
@@ -673,8 +684,14 @@ def pair_stiffness(mesh: SpurMesh, s, load) -> PairStiffness:
     dh = hertz_deflection(load, mesh.face_width)
     kh = hertz_stiffness(dh, mesh.face_width)
     return PairStiffness(
-        kb1, kf1, kb2, kf2, kh, hertz_secant_stiffness(dh, mesh.face_width),
-        series_stiffness(kb1, kf1, kb2, kf2, kh), dh,
+        kb1,
+        kf1,
+        kb2,
+        kf2,
+        kh,
+        hertz_secant_stiffness(dh, mesh.face_width),
+        series_stiffness(kb1, kf1, kb2, kf2, kh),
+        dh,
     )
 
 
@@ -902,8 +919,9 @@ def mesh_phase(times, mesh_freq, phase0=0.0) -> Array:
     return jnp.mod(mesh_cycles(times, mesh_freq, phase0), 1.0)
 
 
-def planet_phase_history(times, carrier_freq, sun_mesh: SpurMesh, ring_mesh: SpurMesh, planet_angles,
-                         ring_freq=0.0, phase0=0.0) -> tuple[Array, Array]:
+def planet_phase_history(
+    times, carrier_freq, sun_mesh: SpurMesh, ring_mesh: SpurMesh, planet_angles, ring_freq=0.0, phase0=0.0
+) -> tuple[Array, Array]:
     """Mesh phases of every planet's sun and ring meshes over a speed history, each (n_t, N).
 
     lam_sn(t) = frac(c(t) - gamma_sn), lam_rn(t) = frac(c(t) - gamma_rn + gamma_rs), where c(t) is the
@@ -960,10 +978,22 @@ def back_to_back_meshes(path: str | Path | None = None, **overrides) -> BackToBa
     hub_planet = mesh_kw.pop("hub_ratio_planet")
     hub_ring = mesh_kw.pop("rim_ratio_ring")
     common = dict(module=g["module_mm"] * 1e-3, pressure_angle=g["pressure_angle_rad"], **mesh_kw)
-    sp = SpurMesh(g["z_planet"], g["z_sun"], internal=False,
-                  hub_ratio_pinion=hub_planet, hub_ratio_gear=hub_sun, **common)
-    rp = SpurMesh(g["z_planet"], g["z_ring"], internal=True,
-                  hub_ratio_pinion=hub_planet, hub_ratio_gear=hub_ring, **common)
+    sp = SpurMesh(
+        g["z_planet"],
+        g["z_sun"],
+        internal=False,
+        hub_ratio_pinion=hub_planet,
+        hub_ratio_gear=hub_sun,
+        **common,
+    )
+    rp = SpurMesh(
+        g["z_planet"],
+        g["z_ring"],
+        internal=True,
+        hub_ratio_pinion=hub_planet,
+        hub_ratio_gear=hub_ring,
+        **common,
+    )
     op = data["operating"]
     n = int(g["n_planets"])
     angles = jnp.asarray([2.0 * math.pi * i / n for i in range(n)], dtype=jnp.float64)

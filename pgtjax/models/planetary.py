@@ -111,13 +111,22 @@ class WindParams(eqx.Module):
     def filter_gain(self):
         """k_v making Var[chi + a1 T_v chi'] * k_v^2 = 1 in stationarity (see module docstring)."""
         tv = self.time_constant()
-        return jnp.sqrt((self.a2 + 1.0) * tv / (jnp.pi * self.spectral_density * (1.0 + self.a1**2 / self.a2)))
+        return jnp.sqrt(
+            (self.a2 + 1.0) * tv / (jnp.pi * self.spectral_density * (1.0 + self.a1**2 / self.a2))
+        )
 
     def torque_sensitivity(self, carrier_speed):
         """dT/dV = rho A R (C_p / lambda_0) V0 (N m s/m), lambda_0 = omega_c R / V0 (Eq. 3.29)."""
         area = jnp.pi * self.rotor_radius**2
         tip_speed_ratio = carrier_speed * self.rotor_radius / self.mean_wind_speed
-        return self.air_density * area * self.rotor_radius * self.power_coefficient / tip_speed_ratio * self.mean_wind_speed
+        return (
+            self.air_density
+            * area
+            * self.rotor_radius
+            * self.power_coefficient
+            / tip_speed_ratio
+            * self.mean_wind_speed
+        )
 
     def mean_torque(self, carrier_speed):
         """T_d (N m), Eq. 3.28."""
@@ -159,8 +168,6 @@ def _f(x):
     return jnp.asarray(x, dtype=jnp.float64)
 
 
-
-
 def default_params(**ring_overrides) -> PlanetaryParams:
     """Thesis Tables 3.1-3.2 with the documented assumptions of ``planetary.toml``."""
     return load_params(_params.path("planetary.toml"), **ring_overrides)
@@ -173,7 +180,9 @@ def load_params(source, **overrides) -> PlanetaryParams:
     """
     data = _params.read_toml(source) if isinstance(source, str | Path) else dict(source)
     try:
-        s, p, c, r, m, w, d = (data[k] for k in ("sun", "planet", "carrier", "ring", "mesh", "wind", "damping"))
+        s, p, c, r, m, w, d = (
+            data[k] for k in ("sun", "planet", "carrier", "ring", "mesh", "wind", "damping")
+        )
         n_planets = int(data.get("n_planets", 3))
         ring_model = overrides.get("ring_model", data.get("ring_model", "elastic"))
         alpha = math.radians(float(m["pressure_angle_deg"]))
@@ -183,36 +192,85 @@ def load_params(source, **overrides) -> PlanetaryParams:
         n_el = int(overrides.get("n_elements", r["n_elements"]))
         n_sup = int(r["n_supports"])
         if n_sup < 0 or (n_sup and n_el % n_sup):
-            raise ValueError(f"`n_supports` ({n_sup}) must divide `n_elements` ({n_el}) (equally spaced bolts)")
+            raise ValueError(
+                f"`n_supports` ({n_sup}) must divide `n_elements` ({n_el}) (equally spaced bolts)"
+            )
         supports = tuple(range(0, n_el, n_el // n_sup)) if n_sup else ()
         ring = RingParams(
-            radius=r_pitch + thickness / 2, thickness=thickness, face_width=float(r["face_width"]),
-            youngs_modulus=float(r["youngs_modulus"]), density=float(r["density"]), n_elements=n_el,
-            support_nodes=supports, k_support_radial=float(r["support_radial"]),
-            k_support_tangential=float(r["support_tangential"]), k_support_torsional=float(r["support_torsional"]),
+            radius=r_pitch + thickness / 2,
+            thickness=thickness,
+            face_width=float(r["face_width"]),
+            youngs_modulus=float(r["youngs_modulus"]),
+            density=float(r["density"]),
+            n_elements=n_el,
+            support_nodes=supports,
+            k_support_radial=float(r["support_radial"]),
+            k_support_tangential=float(r["support_tangential"]),
+            k_support_torsional=float(r["support_torsional"]),
         )
         base = lambda radius: _f(radius * math.cos(alpha))  # noqa: E731
         params = PlanetaryParams(
-            sun=Body(_f(s["mass"]), _f(s["inertia"]), base(rs), _f(s["bearing_stiffness"]), _f(s["torsional_stiffness"])),
+            sun=Body(
+                _f(s["mass"]),
+                _f(s["inertia"]),
+                base(rs),
+                _f(s["bearing_stiffness"]),
+                _f(s["torsional_stiffness"]),
+            ),
             planet=Body(_f(p["mass"]), _f(p["inertia"]), base(rp), _f(p["bearing_stiffness"]), _f(0.0)),
-            carrier=Body(_f(c["mass"]), _f(c["inertia"]), _f(rs + rp), _f(c["bearing_stiffness"]),
-                         _f(c.get("torsional_stiffness", 0.0))),
+            carrier=Body(
+                _f(c["mass"]),
+                _f(c["inertia"]),
+                _f(rs + rp),
+                _f(c["bearing_stiffness"]),
+                _f(c.get("torsional_stiffness", 0.0)),
+            ),
             ring=ring,
-            rigid_ring=Body(_f(r["rigid_mass"]), _f(r["rigid_inertia"]), base(r_pitch), _f(r["rigid_bearing_stiffness"]),
-                            _f(r["rigid_torsional_stiffness"])),
+            rigid_ring=Body(
+                _f(r["rigid_mass"]),
+                _f(r["rigid_inertia"]),
+                base(r_pitch),
+                _f(r["rigid_bearing_stiffness"]),
+                _f(r["rigid_torsional_stiffness"]),
+            ),
             ring_pitch_radius=_f(r_pitch),
             mesh=MeshParams(
-                _f(m["sun_planet_stiffness"]), _f(m["ring_planet_stiffness"]), _f(alpha), _f(m["half_backlash"]),
-                _f(m["contact_ratio_sun"]), _f(m["contact_ratio_ring"]), _f(m["phase_sun_ring"]),
-                _f(m["stiffness_variation"]), _f(m["carrier_speed"]), ring_teeth=int(r["teeth"]),
+                _f(m["sun_planet_stiffness"]),
+                _f(m["ring_planet_stiffness"]),
+                _f(alpha),
+                _f(m["half_backlash"]),
+                _f(m["contact_ratio_sun"]),
+                _f(m["contact_ratio_ring"]),
+                _f(m["phase_sun_ring"]),
+                _f(m["stiffness_variation"]),
+                _f(m["carrier_speed"]),
+                ring_teeth=int(r["teeth"]),
                 harmonics=int(m["harmonics"]),
             ),
-            wind=WindParams(*(_f(w[k]) for k in (
-                "air_density", "rotor_radius", "power_coefficient", "mean_wind_speed", "turbulence_intensity",
-                "turbulence_length", "a1", "a2", "spectral_density"))),
-            damping=DampingParams(_f(d.get("alpha", 0.05)), _f(d.get("beta", 0.03)), _f(d.get("modal_ratio", 0.05)),
-                                  model=str(d.get("model", "rayleigh"))),
-            n_planets=n_planets, ring_model=ring_model,
+            wind=WindParams(
+                *(
+                    _f(w[k])
+                    for k in (
+                        "air_density",
+                        "rotor_radius",
+                        "power_coefficient",
+                        "mean_wind_speed",
+                        "turbulence_intensity",
+                        "turbulence_length",
+                        "a1",
+                        "a2",
+                        "spectral_density",
+                    )
+                )
+            ),
+            damping=DampingParams(
+                _f(d.get("alpha", 0.05)),
+                _f(d.get("beta", 0.03)),
+                _f(d.get("modal_ratio", 0.05)),
+                model=str(d.get("model", "rayleigh")),
+            ),
+            n_planets=n_planets,
+            ring_model=ring_model,
         )
     except KeyError as err:
         raise ValueError(f"planetary parameter file is missing the entry {err}") from None
@@ -229,9 +287,11 @@ def validate(p: PlanetaryParams) -> None:
     if p.n_planets < 1:
         raise ValueError(f"`n_planets` must be >= 1, got {p.n_planets}")
     checks = [
-        ("sun.mass", p.sun.mass, "> 0", lambda v: v > 0), ("planet.mass", p.planet.mass, "> 0", lambda v: v > 0),
+        ("sun.mass", p.sun.mass, "> 0", lambda v: v > 0),
+        ("planet.mass", p.planet.mass, "> 0", lambda v: v > 0),
         ("carrier.mass", p.carrier.mass, "> 0", lambda v: v > 0),
-        ("sun.inertia", p.sun.inertia, "> 0", lambda v: v > 0), ("planet.inertia", p.planet.inertia, "> 0", lambda v: v > 0),
+        ("sun.inertia", p.sun.inertia, "> 0", lambda v: v > 0),
+        ("planet.inertia", p.planet.inertia, "> 0", lambda v: v > 0),
         ("carrier.inertia", p.carrier.inertia, "> 0", lambda v: v > 0),
         ("sun.bearing_stiffness", p.sun.bearing, ">= 0", lambda v: v >= 0),
         ("planet.bearing_stiffness", p.planet.bearing, "> 0", lambda v: v > 0),
@@ -239,7 +299,12 @@ def validate(p: PlanetaryParams) -> None:
         ("sun.torsional_stiffness", p.sun.torsional, ">= 0", lambda v: v >= 0),
         ("mesh.sun_planet_stiffness", p.mesh.sun_planet, "> 0", lambda v: v > 0),
         ("mesh.ring_planet_stiffness", p.mesh.ring_planet, "> 0", lambda v: v > 0),
-        ("mesh.pressure_angle_deg", p.mesh.pressure_angle, "in (0, 45) degrees", lambda v: (v > 0) & (v < np.pi / 4)),
+        (
+            "mesh.pressure_angle_deg",
+            p.mesh.pressure_angle,
+            "in (0, 45) degrees",
+            lambda v: (v > 0) & (v < np.pi / 4),
+        ),
         ("mesh.half_backlash", p.mesh.half_backlash, ">= 0 m", lambda v: v >= 0),
         ("mesh.contact_ratio_sun", p.mesh.contact_ratio_sun, "in [1, 2]", lambda v: (v >= 1) & (v <= 2)),
         ("mesh.contact_ratio_ring", p.mesh.contact_ratio_ring, "in [1, 2]", lambda v: (v >= 1) & (v <= 2)),
@@ -305,8 +370,10 @@ def layout(p: PlanetaryParams) -> Layout:
 
 
 def dof_units(lay: Layout) -> tuple[str, ...]:
-    return tuple("rad" if name.endswith("_rotation") else ("-" if name == "wind_filter_chi" else "m")
-                 for name in lay.names)
+    return tuple(
+        "rad" if name.endswith("_rotation") else ("-" if name == "wind_filter_chi" else "m")
+        for name in lay.names
+    )
 
 
 # ------------------------------------------------------------------------------------ spring directions
@@ -324,16 +391,25 @@ def sun_planet_direction(p: PlanetaryParams, lay: Layout, n: int):
     """g of delta_sp,n (Eq. 3.2 derived in the module docstring)."""
     a = p.mesh.pressure_angle
     psi = p.planet_angles()[n]
-    return _unit(lay.n_dof, {
-        lay.sun(0): -jnp.sin(psi - a), lay.sun(1): jnp.cos(psi - a), lay.sun(2): 1.0,
-        lay.planet(n, 0): -jnp.sin(a), lay.planet(n, 1): -jnp.cos(a), lay.planet(n, 2): 1.0,
-    })
+    return _unit(
+        lay.n_dof,
+        {
+            lay.sun(0): -jnp.sin(psi - a),
+            lay.sun(1): jnp.cos(psi - a),
+            lay.sun(2): 1.0,
+            lay.planet(n, 0): -jnp.sin(a),
+            lay.planet(n, 1): -jnp.cos(a),
+            lay.planet(n, 2): 1.0,
+        },
+    )
 
 
 def ring_planet_lumped_part(p: PlanetaryParams, lay: Layout, n: int):
     """Planet part of g of delta_rp,n: ``d_p . n - u_p`` (the ring part is added by :func:`ring_part`)."""
     a = p.mesh.pressure_angle
-    return _unit(lay.n_dof, {lay.planet(n, 0): jnp.sin(a), lay.planet(n, 1): -jnp.cos(a), lay.planet(n, 2): -1.0})
+    return _unit(
+        lay.n_dof, {lay.planet(n, 0): jnp.sin(a), lay.planet(n, 1): -jnp.cos(a), lay.planet(n, 2): -1.0}
+    )
 
 
 def elastic_ring_part(p: PlanetaryParams, theta, nodal_inverse=None):
@@ -371,7 +447,7 @@ class ContactDirections(eqx.Module):
         thetas = p.mesh.carrier_speed * t + psi
         part = lambda th: elastic_ring_part(p, th, self.ring_nodal_inverse)  # noqa: E731
         ring_cols = jax.vmap(part)(thetas)  # (N, n_ring)
-        return self.constant.at[lay.ring_start: lay.ring_start + lay.n_ring, p.n_planets:].add(ring_cols.T)
+        return self.constant.at[lay.ring_start : lay.ring_start + lay.n_ring, p.n_planets :].add(ring_cols.T)
 
 
 def contact_directions(p: PlanetaryParams, lay: Layout) -> ContactDirections:
@@ -380,7 +456,7 @@ def contact_directions(p: PlanetaryParams, lay: Layout) -> ContactDirections:
     for k in range(n):
         g = ring_planet_lumped_part(p, lay, k)
         if p.ring_model == "rigid":
-            g = g.at[lay.ring_start: lay.ring_start + 3].add(rigid_ring_part(p, p.planet_angles()[k]))
+            g = g.at[lay.ring_start : lay.ring_start + 3].add(rigid_ring_part(p, p.planet_angles()[k]))
         cols.append(g)
     nodal_inverse = ring_nodal_inverse(p.ring) if p.ring_model == "elastic" else None
     return ContactDirections(jnp.stack(cols, axis=1), p, lay, nodal_inverse)
@@ -401,7 +477,9 @@ class MeshStiffness(eqx.Module):
             return self.mean
         j = jnp.arange(1, self.harmonics + 1, dtype=jnp.float64)[:, None]
         coef = 2.0 / (j * jnp.pi) * jnp.sin(j * jnp.pi * self.duty[None, :])
-        angle = j * (self.frequency * t - 2.0 * jnp.pi * self.phase[None, :]) - j * jnp.pi * self.duty[None, :]
+        angle = (
+            j * (self.frequency * t - 2.0 * jnp.pi * self.phase[None, :]) - j * jnp.pi * self.duty[None, :]
+        )
         return self.mean + self.amplitude * jnp.sum(coef * jnp.cos(angle), axis=0)
 
 
@@ -411,9 +489,11 @@ def mesh_stiffness(p: PlanetaryParams) -> MeshStiffness:
     ones = jnp.ones(n)
     mean = jnp.concatenate([m.sun_planet * ones, m.ring_planet * ones])
     return MeshStiffness(
-        mean=mean, amplitude=m.stiffness_variation * mean,
+        mean=mean,
+        amplitude=m.stiffness_variation * mean,
         duty=jnp.concatenate([(m.contact_ratio_sun - 1.0) * ones, (m.contact_ratio_ring - 1.0) * ones]),
-        phase=jnp.concatenate([0.0 * ones, m.phase_sun_ring * ones]), frequency=m.mesh_frequency,
+        phase=jnp.concatenate([0.0 * ones, m.phase_sun_ring * ones]),
+        frequency=m.mesh_frequency,
         harmonics=m.harmonics,
     )
 
@@ -434,9 +514,11 @@ def ring_block(p: PlanetaryParams):
 def mass_matrix(p: PlanetaryParams, lay: Layout, ring=None):
     """Eqs. 3.68-3.70: diag(m, m, I/r^2) per lumped body, the ring's mass, a2 T_v^2 for the filter."""
     diag = jnp.zeros(lay.n_dof)
-    for idx, body in [((0, 1, 2), p.sun)] + [((lay.planet(k, 0), lay.planet(k, 1), lay.planet(k, 2)), p.planet)
-                                               for k in range(p.n_planets)] + [
-            ((lay.carrier(0), lay.carrier(1), lay.carrier(2)), p.carrier)]:
+    for idx, body in (
+        [((0, 1, 2), p.sun)]
+        + [((lay.planet(k, 0), lay.planet(k, 1), lay.planet(k, 2)), p.planet) for k in range(p.n_planets)]
+        + [((lay.carrier(0), lay.carrier(1), lay.carrier(2)), p.carrier)]
+    ):
         diag = diag.at[jnp.array(idx)].set(jnp.stack([body.mass, body.mass, body.inertia / body.radius**2]))
     tv = p.wind.time_constant()
     diag = diag.at[lay.chi].set(p.wind.a2 * tv**2)
@@ -459,7 +541,10 @@ def structural_stiffness(p: PlanetaryParams, lay: Layout, ring=None):
         c, s = math.cos(psi), math.sin(psi)
         radial = {lay.planet(n, 0): 1.0, lay.carrier(0): -c, lay.carrier(1): -s}
         tangential = {lay.planet(n, 1): 1.0, lay.carrier(0): s, lay.carrier(1): -c, lay.carrier(2): -1.0}
-        springs += [(_unit(lay.n_dof, radial), p.planet.bearing), (_unit(lay.n_dof, tangential), p.planet.bearing)]
+        springs += [
+            (_unit(lay.n_dof, radial), p.planet.bearing),
+            (_unit(lay.n_dof, tangential), p.planet.bearing),
+        ]
     for g, stiffness in springs:
         k = k + stiffness * jnp.outer(g, g)
     rs = slice(lay.ring_start, lay.ring_start + lay.n_ring)
@@ -476,7 +561,9 @@ def mean_mesh_stiffness_matrix(p: PlanetaryParams, lay: Layout, t=0.0):
 
 def _wind_coupling(p: PlanetaryParams, lay: Layout):
     """T_r / R_c moved to the left-hand side: (K, C) entries in the carrier row, chi column."""
-    gain = p.wind.torque_sensitivity(p.mesh.carrier_speed) * p.wind.turbulence_intensity * p.wind.mean_wind_speed
+    gain = (
+        p.wind.torque_sensitivity(p.mesh.carrier_speed) * p.wind.turbulence_intensity * p.wind.mean_wind_speed
+    )
     gain = gain * p.wind.filter_gain() / p.carrier.radius
     tv = p.wind.time_constant()
     return -gain, -gain * p.wind.a1 * tv
@@ -512,15 +599,26 @@ def planetary(p: PlanetaryParams | None = None) -> System:
     k_wind, c_wind = _wind_coupling(p, lay)
     stiffness = k_struct.at[lay.carrier(2), lay.chi].add(k_wind)
     damping = damping.at[lay.carrier(2), lay.chi].add(c_wind)
-    load = jnp.zeros(lay.n_dof).at[lay.carrier(2)].set(p.wind.mean_torque(p.mesh.carrier_speed) / p.carrier.radius)
+    load = (
+        jnp.zeros(lay.n_dof)
+        .at[lay.carrier(2)]
+        .set(p.wind.mean_torque(p.mesh.carrier_speed) / p.carrier.radius)
+    )
     noise = jnp.zeros((lay.n_dof, 1)).at[lay.chi, 0].set(1.0)
-    names = [f"sun_planet{k + 1}" for k in range(p.n_planets)] + [f"ring_planet{k + 1}" for k in range(p.n_planets)]
+    names = [f"sun_planet{k + 1}" for k in range(p.n_planets)] + [
+        f"ring_planet{k + 1}" for k in range(p.n_planets)
+    ]
     b = p.mesh.half_backlash * jnp.ones(2 * p.n_planets)
     return System(
-        mass=mass, stiffness=stiffness, damping=damping, load=load, noise_input=noise,
+        mass=mass,
+        stiffness=stiffness,
+        damping=damping,
+        load=load,
+        noise_input=noise,
         spectral_density=p.wind.spectral_density,
         contacts=Contacts(contact_directions(p, lay), mesh_stiffness(p), b, names=names, law=Backlash()),
-        dof_names=lay.names, dof_units=dof_units(lay),
+        dof_names=lay.names,
+        dof_units=dof_units(lay),
     )
 
 
@@ -542,7 +640,7 @@ def mode_type(p: PlanetaryParams, lay: Layout, mass, shape) -> str:
     shape = np.asarray(shape)
     ke = shape * (np.asarray(mass) @ shape)
     total = ke.sum()
-    ring = ke[lay.ring_start: lay.ring_start + lay.n_ring].sum()
+    ring = ke[lay.ring_start : lay.ring_start + lay.n_ring].sum()
     if ke[lay.chi] > 0.5 * total:
         return "filter"
     if p.ring_model == "elastic" and ring > 0.5 * total:

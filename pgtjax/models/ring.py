@@ -73,8 +73,6 @@ __all__ = [
 ]
 
 
-
-
 class RingParams(eqx.Module):
     """Parameters of the elastic ring (Table 5.1, Sec. 6.4, Sec. 3.2.3).
 
@@ -404,8 +402,12 @@ def thin_ring_inextensional_frequency(p: RingParams, n):
     of the centre line neglected.
     """
     n = jnp.asarray(n, dtype=jnp.float64)
-    w2 = p.youngs_modulus * p.second_moment * n**2 * (n**2 - 1) ** 2 / (
-        p.density * p.area * p.radius**4 * (n**2 + 1)
+    w2 = (
+        p.youngs_modulus
+        * p.second_moment
+        * n**2
+        * (n**2 - 1) ** 2
+        / (p.density * p.area * p.radius**4 * (n**2 + 1))
     )
     return jnp.sqrt(w2) / (2.0 * math.pi)
 

@@ -169,13 +169,17 @@ class RingMovingLoadParams(eqx.Module):
         check_range("rayleigh_mass", rayleigh_mass, lo=0.0, unit="1/s")
         check_range("rayleigh_stiffness", rayleigh_stiffness, lo=0.0, unit="s")
         if np.shape(noise_intensity) not in ((), (n_loads,)):
-            raise ValueError(f"`noise_intensity` must be a scalar or have shape ({n_loads},) (one per load), "
-                             f"got {np.shape(noise_intensity)}")
+            raise ValueError(
+                f"`noise_intensity` must be a scalar or have shape ({n_loads},) (one per load), "
+                f"got {np.shape(noise_intensity)}"
+            )
         if modal_damping_ratio is not None:
             check_range("modal_damping_ratio", modal_damping_ratio, lo=0.0)
             if np.shape(modal_damping_ratio) not in ((), (ring.n_dof,)):
-                raise ValueError(f"`modal_damping_ratio` must be a scalar or have shape ({ring.n_dof},) "
-                                 f"(one per ring mode), got {np.shape(modal_damping_ratio)}")
+                raise ValueError(
+                    f"`modal_damping_ratio` must be a scalar or have shape ({ring.n_dof},) "
+                    f"(one per ring mode), got {np.shape(modal_damping_ratio)}"
+                )
         f = lambda x: jnp.asarray(x, dtype=jnp.float64)  # noqa: E731
         self.ring = ring
         self.carrier_speed = f(carrier_speed)
@@ -193,11 +197,17 @@ class RingMovingLoadParams(eqx.Module):
     def replace(self, **changes) -> RingMovingLoadParams:
         """A copy with some fields changed (the result is validated again)."""
         kw = dict(
-            carrier_speed=self.carrier_speed, n_loads=self.n_loads, mean_force=self.mean_force,
-            force_amplitude=self.force_amplitude, mesh_frequency_ratio=self.mesh_frequency_ratio,
-            noise_intensity=self.noise_intensity, pressure_angle=self.pressure_angle,
-            initial_angle=self.initial_angle, rayleigh_mass=self.rayleigh_mass,
-            rayleigh_stiffness=self.rayleigh_stiffness, modal_damping_ratio=self.modal_damping_ratio,
+            carrier_speed=self.carrier_speed,
+            n_loads=self.n_loads,
+            mean_force=self.mean_force,
+            force_amplitude=self.force_amplitude,
+            mesh_frequency_ratio=self.mesh_frequency_ratio,
+            noise_intensity=self.noise_intensity,
+            pressure_angle=self.pressure_angle,
+            initial_angle=self.initial_angle,
+            rayleigh_mass=self.rayleigh_mass,
+            rayleigh_stiffness=self.rayleigh_stiffness,
+            modal_damping_ratio=self.modal_damping_ratio,
         )
         ring = changes.pop("ring", self.ring)
         unknown = set(changes) - set(kw)
@@ -327,7 +337,9 @@ class _ObservedStiffness(eqx.Module):
             c = c @ self.basis
         n_obs = c.shape[0]
         top = jnp.concatenate([self.stiffness, jnp.zeros((n, n_obs))], axis=1)
-        bottom = jnp.concatenate([-self.observer_stiffness * c, self.observer_stiffness * jnp.eye(n_obs)], axis=1)
+        bottom = jnp.concatenate(
+            [-self.observer_stiffness * c, self.observer_stiffness * jnp.eye(n_obs)], axis=1
+        )
         return jnp.concatenate([top, bottom], axis=0)
 
 
@@ -367,8 +379,9 @@ def ring_moving_load_system(
     if not isinstance(p, RingMovingLoadParams):
         raise ValueError(f"`p` must be a RingMovingLoadParams, got {type(p).__name__}")
     L3 = p.ring.n_dof
-    if n_modes is not None and (isinstance(n_modes, bool) or not isinstance(n_modes, int | np.integer)
-                                or not 1 <= n_modes <= L3):
+    if n_modes is not None and (
+        isinstance(n_modes, bool) or not isinstance(n_modes, int | np.integer) or not 1 <= n_modes <= L3
+    ):
         raise ValueError(f"`n_modes` must be None (full model) or an integer in [1, {L3}], got {n_modes!r}")
     M, K = ring_matrices(p.ring)
     C = _damping_matrix(p, M, K)
@@ -400,10 +413,14 @@ def ring_moving_load_system(
     else:
         stiffness = K
     return System(
-        mass=M, stiffness=stiffness, damping=C,
+        mass=M,
+        stiffness=stiffness,
+        damping=C,
         load=_Field(loads, basis, outputs, residual, k_y, "load"),
         noise_input=_Field(loads, basis, outputs, residual, k_y, "noise"),
-        spectral_density=SPECTRAL_DENSITY, dof_names=names, dof_units=units,
+        spectral_density=SPECTRAL_DENSITY,
+        dof_names=names,
+        dof_units=units,
     )
 
 
@@ -412,6 +429,7 @@ def static_initial_state(system: System, t0: float = 0.0):
 
     Starting a moving-load run here removes the start-up transient of suddenly applied loads (which would
     otherwise dominate the maximum of the mean over the first revolution)."""
+
     def static(t):
         k = system.stiffness(t) if callable(system.stiffness) else system.stiffness
         f = system.load(t) if callable(system.load) else system.load
@@ -447,9 +465,9 @@ SUPPORT_CASES = {
 }
 
 
-
-
-def load_params(source=None, *, n_elements: int | None = None, support: int | None = None) -> RingMovingLoadParams:
+def load_params(
+    source=None, *, n_elements: int | None = None, support: int | None = None
+) -> RingMovingLoadParams:
     """Read a ring/moving-load parameter file (TOML, layout of the embedded ``ring_ch6.toml``) or a dict.
 
     ``n_elements`` overrides the mesh (bolts stay equally spaced, so it must be a multiple of the bolt count);
@@ -463,38 +481,56 @@ def load_params(source=None, *, n_elements: int | None = None, support: int | No
         L = int(r["n_elements"]) if n_elements is None else int(n_elements)
         n_bolts = int(s["n_bolts"])
         if n_bolts < 0 or (n_bolts and L % n_bolts):
-            raise ValueError(f"`n_elements` ({L}) must be a multiple of `n_bolts` ({n_bolts}) so that the bolts "
-                             f"sit on nodes")
+            raise ValueError(
+                f"`n_elements` ({L}) must be a multiple of `n_bolts` ({n_bolts}) so that the bolts "
+                f"sit on nodes"
+            )
         if support is not None:
             cases = data.get("support_cases", {})
             key = f"case{support}"
             if key not in cases:
-                raise ValueError(f"`support` must be one of {sorted(int(k[4:]) for k in cases)}, got {support!r}")
+                raise ValueError(
+                    f"`support` must be one of {sorted(int(k[4:]) for k in cases)}, got {support!r}"
+                )
             s = {**s, **cases[key]}
         ro, ri = float(r["outer_radius"]), float(r["root_radius"])
         if not 0.0 < ri < ro:
             raise ValueError(f"`root_radius` must be > 0 m and < `outer_radius` ({ro} m), got {ri}")
         nodes = tuple(range(0, L, L // n_bolts)) if n_bolts else ()
         ring = RingParams(
-            0.5 * (ro + ri), ro - ri, float(r["face_width"]), float(r["youngs_modulus"]), float(r["density"]),
-            n_elements=L, support_nodes=nodes, k_support_radial=float(s["k_radial"]),
-            k_support_tangential=float(s["k_tangential"]), k_support_torsional=float(s["k_torsional"]),
+            0.5 * (ro + ri),
+            ro - ri,
+            float(r["face_width"]),
+            float(r["youngs_modulus"]),
+            float(r["density"]),
+            n_elements=L,
+            support_nodes=nodes,
+            k_support_radial=float(s["k_radial"]),
+            k_support_tangential=float(s["k_tangential"]),
+            k_support_torsional=float(s["k_torsional"]),
             rotary_inertia=bool(r.get("rotary_inertia", True)),
         )
         if "rayleigh_mass" in d:
             lm, lk = float(d["rayleigh_mass"]), float(d["rayleigh_stiffness"])
         elif "damping_ratio" in d:
-            lm, lk = rayleigh_coefficients(float(d["damping_ratio"]), float(d["omega_a"]), float(d["omega_b"]))
+            lm, lk = rayleigh_coefficients(
+                float(d["damping_ratio"]), float(d["omega_a"]), float(d["omega_b"])
+            )
         else:
             lm = lk = None
         zeta = d.get("modal_damping_ratio")
         return RingMovingLoadParams(
-            ring, carrier_speed=float(ld["carrier_speed"]), n_loads=int(ld["n_loads"]),
-            mean_force=float(ld["mean_force"]), force_amplitude=float(ld["force_amplitude"]),
-            mesh_frequency_ratio=float(ld["mesh_frequency_ratio"]), noise_intensity=float(ld["noise_intensity"]),
+            ring,
+            carrier_speed=float(ld["carrier_speed"]),
+            n_loads=int(ld["n_loads"]),
+            mean_force=float(ld["mean_force"]),
+            force_amplitude=float(ld["force_amplitude"]),
+            mesh_frequency_ratio=float(ld["mesh_frequency_ratio"]),
+            noise_intensity=float(ld["noise_intensity"]),
             pressure_angle=math.radians(float(ld["pressure_angle_deg"])),
             initial_angle=math.radians(float(ld.get("initial_angle_deg", 0.0))),
-            rayleigh_mass=lm, rayleigh_stiffness=lk,
+            rayleigh_mass=lm,
+            rayleigh_stiffness=lk,
             modal_damping_ratio=None if zeta is None else float(zeta),
         )
     except KeyError as err:
@@ -515,8 +551,19 @@ def support_case(p: RingMovingLoadParams, case: int) -> RingMovingLoadParams:
     kr, kt, kth = SUPPORT_CASES[case]
     r = p.ring
     ring = RingParams(
-        r.radius, r.thickness, r.face_width, r.youngs_modulus, r.density, n_elements=r.n_elements,
-        n_teeth=r.n_teeth, tooth_mass=r.tooth_mass, tooth_inertia=r.tooth_inertia, support_nodes=r.support_nodes,
-        k_support_radial=kr, k_support_tangential=kt, k_support_torsional=kth, rotary_inertia=r.rotary_inertia,
+        r.radius,
+        r.thickness,
+        r.face_width,
+        r.youngs_modulus,
+        r.density,
+        n_elements=r.n_elements,
+        n_teeth=r.n_teeth,
+        tooth_mass=r.tooth_mass,
+        tooth_inertia=r.tooth_inertia,
+        support_nodes=r.support_nodes,
+        k_support_radial=kr,
+        k_support_tangential=kt,
+        k_support_torsional=kth,
+        rotary_inertia=r.rotary_inertia,
     )
     return p.replace(ring=ring)

@@ -75,8 +75,11 @@ def step_convergence(params=None, *, dts=(4e-5, 2e-5, 1e-5, 5e-6, 2.5e-6), t_end
     for dt in dts:
         n = int(round(t_end / dt))
         r = solve_moments(system, dt=dt, n_steps=n, save_every=n, criterion=criterion)
-        rows.append(dict(dt=dt, omega_max_dt=w_max * dt, mean=float(r.mean_delta[-1, 0]),
-                         std=float(r.std_delta[-1, 0])))
+        rows.append(
+            dict(
+                dt=dt, omega_max_dt=w_max * dt, mean=float(r.mean_delta[-1, 0]), std=float(r.std_delta[-1, 0])
+            )
+        )
     ref = rows[-1]
     for row in rows:
         row["mean_rel_error"] = abs(row["mean"] - ref["mean"]) / abs(ref["mean"])
@@ -131,13 +134,23 @@ def run_study(
             mu, sd = float(np.max(ref.mean_delta)), float(np.max(ref.std_delta))
             lo, hi = min(mu - 8 * sd, -b - 3 * sd), mu + 8 * sd
             mc = monte_carlo(
-                system, n_samples=n_samples, key=jax.random.fold_in(key, index), chunk_size=chunk_size,
-                histograms={"delta:mesh": np.linspace(lo, hi, 91)}, histogram_times=pdf_times,
-                progress=progress, **kw,
+                system,
+                n_samples=n_samples,
+                key=jax.random.fold_in(key, index),
+                chunk_size=chunk_size,
+                histograms={"delta:mesh": np.linspace(lo, hi, 91)},
+                histogram_times=pdf_times,
+                progress=progress,
+                **kw,
             )
         out.append(RegimeResult(name, float(t_in), float(t_out), sl, mc, b))
-    return GearPairStudy(out, dt, n_steps * dt, n_samples,
-                         settings=dict(criteria=list(criteria), n_saves=n_saves, pdf_times=list(pdf_times)))
+    return GearPairStudy(
+        out,
+        dt,
+        n_steps * dt,
+        n_samples,
+        settings=dict(criteria=list(criteria), n_saves=n_saves, pdf_times=list(pdf_times)),
+    )
 
 
 def error_table(study: GearPairStudy, settle_fraction: float = 0.25) -> list[dict]:
@@ -155,10 +168,13 @@ def error_table(study: GearPairStudy, settle_fraction: float = 0.25) -> list[dic
             for name, _ in QUANTITIES:
                 m_sl, s_sl = _series(sl, name)
                 m_mc, s_mc = _series(reg.mc, name)
-                row[f"{name}_mean_error"] = float(np.mean(np.abs(m_sl - m_mc)[late]) / np.mean(np.abs(m_mc)[late]))
+                row[f"{name}_mean_error"] = float(
+                    np.mean(np.abs(m_sl - m_mc)[late]) / np.mean(np.abs(m_mc)[late])
+                )
                 row[f"{name}_std_error"] = float(np.mean(np.abs(s_sl - s_mc)[late]) / np.mean(s_mc[late]))
-            row["contact_loss_sl"] = float(gaussian_contact_loss(
-                float(sl.mean_delta[-1, 0]), float(sl.std_delta[-1, 0]), reg.clearance))
+            row["contact_loss_sl"] = float(
+                gaussian_contact_loss(float(sl.mean_delta[-1, 0]), float(sl.std_delta[-1, 0]), reg.clearance)
+            )
             row["contact_loss_mc"] = float(reg.mc.contact_loss_probability[-1, 0])
             rows.append(row)
     return rows
@@ -209,21 +225,43 @@ def write_outputs(study: GearPairStudy, outdir) -> list[Path]:
             curves = {"MC": {q: _series(reg.mc, q) for q, _ in QUANTITIES}, **curves}
         times = np.asarray(next(iter(reg.sl.values())).times)
         title = f"{reg.name.replace('_', ' ')}: T_in = {reg.torque_in:g} N m"
-        written.append(plots.save(plots.mean_std_figure(times, curves, list(QUANTITIES), title),
-                                  outdir / f"{reg.name}_moments.png"))
+        written.append(
+            plots.save(
+                plots.mean_std_figure(times, curves, list(QUANTITIES), title),
+                outdir / f"{reg.name}_moments.png",
+            )
+        )
         if reg.mc is not None and reg.mc.histograms:
             for i, t in enumerate(np.asarray(reg.mc.histogram_times)):
                 k = int(np.argmin(np.abs(times - t)))
-                gauss = {f"SL {c}": (float(sl.mean_delta[k, 0]), float(sl.std_delta[k, 0])) for c, sl in reg.sl.items()}
-                fig = plots.pdf_figure(reg.mc.histogram_edges["delta:mesh"], reg.mc.histograms["delta:mesh"][i],
-                                       reg.mc.n_samples, gauss, clearance=reg.clearance,
-                                       title=f"{reg.name.replace('_', ' ')}, t = {t * 1e3:.1f} ms")
+                gauss = {
+                    f"SL {c}": (float(sl.mean_delta[k, 0]), float(sl.std_delta[k, 0]))
+                    for c, sl in reg.sl.items()
+                }
+                fig = plots.pdf_figure(
+                    reg.mc.histogram_edges["delta:mesh"],
+                    reg.mc.histograms["delta:mesh"][i],
+                    reg.mc.n_samples,
+                    gauss,
+                    clearance=reg.clearance,
+                    title=f"{reg.name.replace('_', ' ')}, t = {t * 1e3:.1f} ms",
+                )
                 written.append(plots.save(fig, outdir / f"{reg.name}_pdf_t{t * 1e3:.0f}ms.png"))
-    summary = dict(dt_s=study.dt, t_end_s=study.t_end, n_samples=study.n_samples, settings=study.settings,
-                   errors=error_table(study),
-                   histogram_shape={r.name: histogram_shape(r) for r in study.regimes if r.mc is not None and r.mc.histograms},
-                   ks_against_sl={r.name: {c: ks_distance(r, c) for c in r.sl}
-                                  for r in study.regimes if r.mc is not None and r.mc.histograms})
+    summary = dict(
+        dt_s=study.dt,
+        t_end_s=study.t_end,
+        n_samples=study.n_samples,
+        settings=study.settings,
+        errors=error_table(study),
+        histogram_shape={
+            r.name: histogram_shape(r) for r in study.regimes if r.mc is not None and r.mc.histograms
+        },
+        ks_against_sl={
+            r.name: {c: ks_distance(r, c) for c in r.sl}
+            for r in study.regimes
+            if r.mc is not None and r.mc.histograms
+        },
+    )
     path = outdir / "summary.json"
     path.write_text(json.dumps(summary, indent=2))
     written.append(path)
@@ -232,26 +270,39 @@ def write_outputs(study: GearPairStudy, outdir) -> list[Path]:
 
 def format_error_table(rows: list[dict]) -> str:
     """Plain-text table of :func:`error_table` (relative errors in %)."""
-    head = f"{'regime':14s} {'criterion':9s} " + " ".join(f"{q + ' mean':>10s} {q + ' std':>9s}" for q, _ in QUANTITIES)
+    head = f"{'regime':14s} {'criterion':9s} " + " ".join(
+        f"{q + ' mean':>10s} {q + ' std':>9s}" for q, _ in QUANTITIES
+    )
     lines = [head + f" {'P_loss SL':>9s} {'P_loss MC':>9s}"]
     for r in rows:
-        vals = " ".join(f"{100 * r[q + '_mean_error']:9.2f}% {100 * r[q + '_std_error']:8.2f}%" for q, _ in QUANTITIES)
-        lines.append(f"{r['regime']:14s} {r['criterion']:9s} {vals} {r['contact_loss_sl']:9.4f} {r['contact_loss_mc']:9.4f}")
+        vals = " ".join(
+            f"{100 * r[q + '_mean_error']:9.2f}% {100 * r[q + '_std_error']:8.2f}%" for q, _ in QUANTITIES
+        )
+        lines.append(
+            f"{r['regime']:14s} {r['criterion']:9s} {vals} {r['contact_loss_sl']:9.4f} {r['contact_loss_mc']:9.4f}"
+        )
     return "\n".join(lines)
 
 
 def format_header(regimes, *, criteria, n_samples: int, dt: float, t_end: float) -> str:
     """One line describing a :func:`run_study` call (the CLI's first line)."""
-    return (f"pgtjax gear pair (thesis ch. 4): {len(regimes)} regimes, SL {', '.join(criteria)}, "
-            f"MC {n_samples} samples, dt = {dt:g} s, t_end = {t_end:g} s")
+    return (
+        f"pgtjax gear pair (thesis ch. 4): {len(regimes)} regimes, SL {', '.join(criteria)}, "
+        f"MC {n_samples} samples, dt = {dt:g} s, t_end = {t_end:g} s"
+    )
 
 
 def format_step_table(rows: list[dict]) -> str:
     """Plain-text table of :func:`step_convergence`."""
-    lines = [f"{'dt (s)':>10s} {'w_max dt':>9s} {'mean delta (m)':>15s} {'std delta (m)':>14s} "
-             f"{'d mean':>9s} {'d std':>9s}"]
-    lines += [f"{r['dt']:10.2e} {r['omega_max_dt']:9.3f} {r['mean']:15.6e} {r['std']:14.6e} "
-              f"{r['mean_rel_error']:9.2e} {r['std_rel_error']:9.2e}" for r in rows]
+    lines = [
+        f"{'dt (s)':>10s} {'w_max dt':>9s} {'mean delta (m)':>15s} {'std delta (m)':>14s} "
+        f"{'d mean':>9s} {'d std':>9s}"
+    ]
+    lines += [
+        f"{r['dt']:10.2e} {r['omega_max_dt']:9.3f} {r['mean']:15.6e} {r['std']:14.6e} "
+        f"{r['mean_rel_error']:9.2e} {r['std_rel_error']:9.2e}"
+        for r in rows
+    ]
     return "\n".join(lines)
 
 
@@ -260,15 +311,22 @@ def modal_table(params=None) -> list[dict]:
     ``[{mode, frequency_hz, shape: {dof: value}}]``."""
     params = gp.default_params() if params is None else params
     modes = modal_analysis(gp.gear_pair(params))
-    return [dict(mode=i + 1, frequency_hz=float(f),
-                 shape=dict(zip(modes.dof_names, map(float, modes.shapes[:, i]))))
-            for i, f in enumerate(modes.frequencies_hz)]
+    return [
+        dict(
+            mode=i + 1,
+            frequency_hz=float(f),
+            shape=dict(zip(modes.dof_names, map(float, modes.shapes[:, i]))),
+        )
+        for i, f in enumerate(modes.frequencies_hz)
+    ]
 
 
 def format_modal_table(rows: list[dict]) -> str:
     """Plain-text table of :func:`modal_table`."""
     names = list(rows[0]["shape"]) if rows else list(gp.DOF_NAMES)
     lines = [f"{'mode':>4s} {'f (Hz)':>12s}  shape ({', '.join(names)})"]
-    lines += [f"{r['mode']:4d} {r['frequency_hz']:12.3f}  "
-              + " ".join(f"{v:+.3e}" for v in r["shape"].values()) for r in rows]
+    lines += [
+        f"{r['mode']:4d} {r['frequency_hz']:12.3f}  " + " ".join(f"{v:+.3e}" for v in r["shape"].values())
+        for r in rows
+    ]
     return "\n".join(lines)

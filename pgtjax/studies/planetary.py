@@ -69,9 +69,15 @@ def every_nth_save(result: MomentResult, n: int) -> MomentResult:
     def merged(a, reduce):
         return jnp.concatenate([a[:1], reduce(a[1:].reshape(-1, n, *a.shape[1:]), axis=1)])
 
-    return eqx.tree_at(lambda r: (r.iterations, r.residual, r.converged), out,
-                       (merged(result.iterations, jnp.max), merged(result.residual, jnp.max),
-                        merged(result.converged, jnp.all)))
+    return eqx.tree_at(
+        lambda r: (r.iterations, r.residual, r.converged),
+        out,
+        (
+            merged(result.iterations, jnp.max),
+            merged(result.residual, jnp.max),
+            merged(result.converged, jnp.all),
+        ),
+    )
 
 
 def carrier_period(p: pm.PlanetaryParams) -> float:
@@ -87,9 +93,11 @@ def contact_point_observables(p: pm.PlanetaryParams, planet: int = 0) -> Observa
 
     def matrix(t):
         rows = ring_interpolation(p.ring, p.mesh.carrier_speed * t + psi, inverse)[:2]
-        return jnp.zeros((2, lay.n_dof)).at[:, lay.ring_start: lay.ring_start + lay.n_ring].set(rows)
+        return jnp.zeros((2, lay.n_dof)).at[:, lay.ring_start : lay.ring_start + lay.n_ring].set(rows)
 
-    return Observables(matrix, names=[f"ring_contact{planet + 1}_radial", f"ring_contact{planet + 1}_tangential"])
+    return Observables(
+        matrix, names=[f"ring_contact{planet + 1}_radial", f"ring_contact{planet + 1}_tangential"]
+    )
 
 
 def _grid(p, dt, periods, n_saves, sl_refine):
@@ -109,15 +117,30 @@ def _setup(p, dt, periods, n_saves, sl_refine=1, observables=True):
     system = pm.planetary(p)
     lay = pm.layout(p)
     n_steps, mc_every, sl_every = _grid(p, dt, periods, n_saves, sl_refine)
-    kw = dict(dt=dt, n_steps=n_steps, initial_displacement=static_equilibrium(system),
-              initial_covariance=pm.wind_filter_stationary_covariance(p, lay))
+    kw = dict(
+        dt=dt,
+        n_steps=n_steps,
+        initial_displacement=static_equilibrium(system),
+        initial_covariance=pm.wind_filter_stationary_covariance(p, lay),
+    )
     if observables and p.ring_model == "elastic":
         kw["observables"] = contact_point_observables(p)
     return system, kw, mc_every, sl_every
 
 
-def run_study(params=None, *, n_samples=500, dt=0.0027, periods=1.0, n_saves=200, sl_refine=10,
-              criteria=("force",), key=None, chunk_size=5000, progress=True) -> PlanetaryStudy:
+def run_study(
+    params=None,
+    *,
+    n_samples=500,
+    dt=0.0027,
+    periods=1.0,
+    n_saves=200,
+    sl_refine=10,
+    criteria=("force",),
+    key=None,
+    chunk_size=5000,
+    progress=True,
+) -> PlanetaryStudy:
     """SL (each criterion) and MC over ``periods`` carrier periods; ``n_samples = 0`` skips MC.
 
     MC is saved about ``n_saves`` times and SL ``sl_refine`` times as often (:func:`_grid`;
@@ -130,21 +153,37 @@ def run_study(params=None, *, n_samples=500, dt=0.0027, periods=1.0, n_saves=200
         try:
             check_count("n_samples", n_samples, minimum=2)
         except ValueError:
-            raise ValueError(f"`n_samples` must be 0 (no Monte Carlo) or an integer >= 2, "
-                             f"got {n_samples!r}") from None
+            raise ValueError(
+                f"`n_samples` must be 0 (no Monte Carlo) or an integer >= 2, got {n_samples!r}"
+            ) from None
     system, kw, mc_every, sl_every = _setup(p, dt, periods, n_saves, sl_refine)
     sl = {c: solve_moments(system, criterion=c, save_every=sl_every, **kw) for c in criteria}
     mc = None
     if n_samples:
-        mc = monte_carlo(system, n_samples=n_samples, key=jax.random.key(0) if key is None else key,
-                         chunk_size=chunk_size, progress=progress, save_every=mc_every, **kw)
-    settings = dict(n_samples=n_samples, periods=periods, n_steps=kw["n_steps"], criteria=list(criteria),
-                    mc_save_every=mc_every, sl_save_every=sl_every, sl_refine=mc_every // sl_every)
+        mc = monte_carlo(
+            system,
+            n_samples=n_samples,
+            key=jax.random.key(0) if key is None else key,
+            chunk_size=chunk_size,
+            progress=progress,
+            save_every=mc_every,
+            **kw,
+        )
+    settings = dict(
+        n_samples=n_samples,
+        periods=periods,
+        n_steps=kw["n_steps"],
+        criteria=list(criteria),
+        mc_save_every=mc_every,
+        sl_save_every=sl_every,
+        sl_refine=mc_every // sl_every,
+    )
     return PlanetaryStudy(p, sl, mc, dt, carrier_period(p), settings)
 
 
-def parameter_sweep(params, variants: dict, *, dt=0.0027, periods=1.0, n_saves=200,
-                    sl_refine=10) -> dict[str, MomentResult]:
+def parameter_sweep(
+    params, variants: dict, *, dt=0.0027, periods=1.0, n_saves=200, sl_refine=10
+) -> dict[str, MomentResult]:
     """SL + recursion for each ``{label: PlanetaryParams}`` (rim thickness, supports...), saved as
     :func:`run_study` saves SL."""
     out = {}
@@ -159,7 +198,9 @@ def rim_thickness_variants(params=None, thicknesses=(0.087, 0.128, 0.168)) -> di
     p = pm.default_params() if params is None else params
     out = {}
     for h in thicknesses:
-        ring = eqx.tree_at(lambda r: (r.thickness, r.radius), p.ring, (jnp.asarray(h), p.ring_pitch_radius + h / 2))
+        ring = eqx.tree_at(
+            lambda r: (r.thickness, r.radius), p.ring, (jnp.asarray(h), p.ring_pitch_radius + h / 2)
+        )
         out[f"t_r = {h * 1e3:.0f} mm"] = eqx.tree_at(lambda q: q.ring, p, ring)
     return out
 
@@ -184,12 +225,15 @@ def modal_table(params=None) -> list[dict]:
     system = pm.planetary(p)
     lay = pm.layout(p)
     modes = modal_analysis(system)
-    return [dict(mode=i + 1, frequency_hz=float(f), type=pm.mode_type(p, lay, system.mass, modes.shapes[:, i]))
-            for i, f in enumerate(modes.frequencies_hz)]
+    return [
+        dict(mode=i + 1, frequency_hz=float(f), type=pm.mode_type(p, lay, system.mass, modes.shapes[:, i]))
+        for i, f in enumerate(modes.frequencies_hz)
+    ]
 
 
-def sensitivities(params=None, *, dt=0.0027, n_steps=200, node=2, mesh="ring_planet1",
-                  relative_step=1e-2) -> dict:
+def sensitivities(
+    params=None, *, dt=0.0027, n_steps=200, node=2, mesh="ring_planet1", relative_step=1e-2
+) -> dict:
     """Derivatives of the std, at the end of ``n_steps`` steps, of ring node ``node``'s radial displacement
     and of the meshing force of ``mesh`` with respect to the rim thickness and the bolts' radial stiffness:
     reverse-mode autodiff through SL + recursion (one pass per quantity), with Richardson-extrapolated
@@ -212,16 +256,27 @@ def sensitivities(params=None, *, dt=0.0027, n_steps=200, node=2, mesh="ring_pla
 
     def response(x):
         thickness, support = x
-        ring = eqx.tree_at(lambda r: (r.thickness, r.radius, r.k_support_radial), p.ring,
-                           (thickness, p.ring_pitch_radius + thickness / 2, support))
+        ring = eqx.tree_at(
+            lambda r: (r.thickness, r.radius, r.k_support_radial),
+            p.ring,
+            (thickness, p.ring_pitch_radius + thickness / 2, support),
+        )
         q = eqx.tree_at(lambda z: z.ring, p, ring)
-        r = solve_moments(pm.planetary(q), dt=dt, n_steps=n_steps, save_every=n_steps, rtol=1e-13,
-                          initial_displacement=u_eq, initial_covariance=pm.wind_filter_stationary_covariance(q, lay))
+        r = solve_moments(
+            pm.planetary(q),
+            dt=dt,
+            n_steps=n_steps,
+            save_every=n_steps,
+            rtol=1e-13,
+            initial_displacement=u_eq,
+            initial_covariance=pm.wind_filter_stationary_covariance(q, lay),
+        )
         return jnp.stack([r.std_u[-1, index], r.force_std[-1, contact]])
 
     x = jnp.stack([p.ring.thickness, jnp.asarray(p.ring.k_support_radial).reshape(-1)[0]])
     value = response(x)
     jac = jax.jacrev(response)(x)  # (quantity, parameter)
+
     def central(i, h):
         e = jnp.zeros(2).at[i].set(h)
         return (response(x + e) - response(x - e)) / (2 * h)
@@ -229,12 +284,17 @@ def sensitivities(params=None, *, dt=0.0027, n_steps=200, node=2, mesh="ring_pla
     steps = [float(x[i]) * relative_step for i in range(2)]
     fd = jnp.stack([(4.0 * central(i, h) - central(i, 2.0 * h)) / 3.0 for i, h in enumerate(steps)], axis=1)
     t_end = f"{n_steps * dt:.3f} s"
-    return dict(quantities=[f"std of ring_node{node}_radial at t = {t_end} (m)",
-                            f"std of the {mesh} meshing force at t = {t_end} (N)"],
-                value=[float(v) for v in value],
-                parameters=["rim thickness (m)", "bolt radial stiffness (N/m)"],
-                gradient=np.asarray(jac).tolist(), central_difference=np.asarray(fd).tolist(),
-                elasticity=np.asarray(jac * x[None, :] / value[:, None]).tolist())
+    return dict(
+        quantities=[
+            f"std of ring_node{node}_radial at t = {t_end} (m)",
+            f"std of the {mesh} meshing force at t = {t_end} (N)",
+        ],
+        value=[float(v) for v in value],
+        parameters=["rim thickness (m)", "bolt radial stiffness (N/m)"],
+        gradient=np.asarray(jac).tolist(),
+        central_difference=np.asarray(fd).tolist(),
+        elasticity=np.asarray(jac * x[None, :] / value[:, None]).tolist(),
+    )
 
 
 # ---------------------------------------------------------------------------------------------- output
@@ -266,8 +326,11 @@ def roundoff_dofs(result: MomentResult | MonteCarloResult) -> list[str]:
     (~1e-14 m) is a visible part of the std. A design without that symmetry normally has none."""
     peak = np.max(np.asarray(result.std_u), axis=0)
     units = np.asarray(result.dof_units)
-    return [n for i, n in enumerate(result.dof_names)
-            if peak[i] < ROUNDOFF_LEVEL * np.max(peak[units == units[i]])]
+    return [
+        n
+        for i, n in enumerate(result.dof_names)
+        if peak[i] < ROUNDOFF_LEVEL * np.max(peak[units == units[i]])
+    ]
 
 
 def _z_scores(sl: MomentResult, mc: MonteCarloResult, what: str):
@@ -289,7 +352,8 @@ def error_summary(study: PlanetaryStudy, criterion: str | None = None) -> dict:
         return {}
     sl, mc = study.sl_on_mc_grid(criterion), study.mc
     if sl.times.shape != mc.times.shape or not np.allclose(
-            np.asarray(sl.times), np.asarray(mc.times), rtol=0.0, atol=1e-9 * study.carrier_period):
+        np.asarray(sl.times), np.asarray(mc.times), rtol=0.0, atol=1e-9 * study.carrier_period
+    ):
         raise ValueError("SL and MC saved times differ: the study's grids are inconsistent")
     quiet = sorted(set(roundoff_dofs(study.sl_result(criterion))) & set(roundoff_dofs(mc)))
     compared = [i for i, n in enumerate(sl.dof_names) if n not in quiet and n != "wind_filter_chi"]
@@ -301,32 +365,45 @@ def error_summary(study: PlanetaryStudy, criterion: str | None = None) -> dict:
 
     def extremes(z_m, z_s, names, columns):
         wm, ws = worst(z_m, names, columns), worst(z_s, names, columns)
-        return dict(max_mean_error_in_se=max(wm.values(), default=None),
-                    max_std_error_in_se=max(ws.values(), default=None),
-                    fraction_within_3_se=float(np.mean((z_m[:, columns] < 3) & (z_s[:, columns] < 3)))
-                    if columns else None, per_mean=wm, per_std=ws)
+        return dict(
+            max_mean_error_in_se=max(wm.values(), default=None),
+            max_std_error_in_se=max(ws.values(), default=None),
+            fraction_within_3_se=float(np.mean((z_m[:, columns] < 3) & (z_s[:, columns] < 3)))
+            if columns
+            else None,
+            per_mean=wm,
+            per_std=ws,
+        )
 
     dofs = extremes(z_mean, z_std, sl.dof_names, compared)
     forces = extremes(f_mean, f_std, sl.contact_names, list(range(len(sl.contact_names))))
     return dict(
-        criterion=sl.criterion, n_samples=mc.n_samples, dofs_compared=len(compared),
+        criterion=sl.criterion,
+        n_samples=mc.n_samples,
+        dofs_compared=len(compared),
         roundoff_dofs_not_compared=quiet,
-        max_mean_error_in_se=dofs["max_mean_error_in_se"], max_std_error_in_se=dofs["max_std_error_in_se"],
+        max_mean_error_in_se=dofs["max_mean_error_in_se"],
+        max_std_error_in_se=dofs["max_std_error_in_se"],
         fraction_of_dof_time_points_within_3_se=dofs["fraction_within_3_se"],
-        mesh_force=dict(max_mean_error_in_se=forces["max_mean_error_in_se"],
-                        max_std_error_in_se=forces["max_std_error_in_se"],
-                        fraction_of_mesh_time_points_within_3_se=forces["fraction_within_3_se"],
-                        per_mesh_mean=forces["per_mean"], per_mesh_std=forces["per_std"]),
+        mesh_force=dict(
+            max_mean_error_in_se=forces["max_mean_error_in_se"],
+            max_std_error_in_se=forces["max_std_error_in_se"],
+            fraction_of_mesh_time_points_within_3_se=forces["fraction_within_3_se"],
+            per_mesh_mean=forces["per_mean"],
+            per_mesh_std=forces["per_std"],
+        ),
         contact_loss_probability_max=float(np.max(mc.contact_loss_probability)),
-        per_dof_mean=dofs["per_mean"], per_dof_std=dofs["per_std"],
+        per_dof_mean=dofs["per_mean"],
+        per_dof_std=dofs["per_std"],
     )
 
 
 # ------------------------------------------------------------------------------ inputs and text reports
 
 
-def load_params(path=None, *, ring_model: str | None = None,
-                n_elements: int | None = None) -> pm.PlanetaryParams:
+def load_params(
+    path=None, *, ring_model: str | None = None, n_elements: int | None = None
+) -> pm.PlanetaryParams:
     """Parameters from a TOML file (layout of ``planetary.toml``; ``None``: the embedded thesis set), with the
     ring model and the number of ring elements overridden when given (``None`` or 0: the file's)."""
     overrides = {}
@@ -339,14 +416,17 @@ def load_params(path=None, *, ring_model: str | None = None,
 
 def format_header(params: pm.PlanetaryParams, *, periods: float, dt: float, criteria, n_samples: int) -> str:
     """One line describing a :func:`run_study` call (the CLI's first line)."""
-    return (f"pgtjax planetary gear train (thesis ch. 3): {params.ring_model} ring, "
-            f"{params.n_planets} planets, {periods:g} carrier period(s) of {carrier_period(params):.2f} s "
-            f"at dt = {dt:g} s, "
-            f"SL {', '.join(criteria)}, MC {n_samples} samples")
+    return (
+        f"pgtjax planetary gear train (thesis ch. 3): {params.ring_model} ring, "
+        f"{params.n_planets} planets, {periods:g} carrier period(s) of {carrier_period(params):.2f} s "
+        f"at dt = {dt:g} s, "
+        f"SL {', '.join(criteria)}, MC {n_samples} samples"
+    )
 
 
-def standard_sweeps(params: pm.PlanetaryParams, *, dt=0.0027, periods=1.0, n_saves=200, sl_refine=10,
-                    say=None) -> dict | None:
+def standard_sweeps(
+    params: pm.PlanetaryParams, *, dt=0.0027, periods=1.0, n_saves=200, sl_refine=10, say=None
+) -> dict | None:
     """The SL sweeps of the thesis (rim thickness 87 / 128 / 168 mm, Figs. 3.12-3.15; 3, 6 or 9 bolt supports,
     those dividing the number of ring elements), ``{title: {label: MomentResult}}`` for
     :func:`write_outputs`; ``None`` for a rigid ring. ``say(message)`` is called before each sweep."""
@@ -355,8 +435,9 @@ def standard_sweeps(params: pm.PlanetaryParams, *, dt=0.0027, periods=1.0, n_sav
     say = say or (lambda msg: None)
     say("rim thickness 87 / 128 / 168 mm (SL)")
     kw = dict(dt=dt, periods=periods, n_saves=n_saves, sl_refine=sl_refine)
-    sweeps = {"Rim thickness: thesis Figs. 3.12-3.15":
-              parameter_sweep(params, rim_thickness_variants(params), **kw)}
+    sweeps = {
+        "Rim thickness: thesis Figs. 3.12-3.15": parameter_sweep(params, rim_thickness_variants(params), **kw)
+    }
     counts = tuple(c for c in (3, 6, 9) if params.ring.n_elements % c == 0)
     say(f"bolt supports {counts} (SL)")
     sweeps["Supports: number of bolts"] = parameter_sweep(params, support_variants(params, counts), **kw)
@@ -376,15 +457,17 @@ def format_error_summary(e: dict) -> str:
     """Plain-text summary of :func:`error_summary` (SL against MC in MC standard errors)."""
     f = e["mesh_force"]
     quiet = ", ".join(e["roundoff_dofs_not_compared"]) or "none"
-    return (f"SL ({e['criterion']}) vs MC ({e['n_samples']} samples), in MC standard errors (s.e.):\n"
-            f"  {e['dofs_compared']} DOFs: {100 * e['fraction_of_dof_time_points_within_3_se']:.2f} % "
-            f"of (DOF, time) points within 3 s.e.; largest deviation {e['max_mean_error_in_se']:.1f} "
-            f"(mean), {e['max_std_error_in_se']:.1f} (std)\n"
-            f"  meshing forces: {100 * f['fraction_of_mesh_time_points_within_3_se']:.2f} % within 3 s.e.; "
-            f"largest deviation {f['max_mean_error_in_se']:.1f} (mean), "
-            f"{f['max_std_error_in_se']:.1f} (std)\n"
-            f"  max contact-loss probability {e['contact_loss_probability_max']:.3g}; "
-            f"not compared (zero by symmetry): {quiet}")
+    return (
+        f"SL ({e['criterion']}) vs MC ({e['n_samples']} samples), in MC standard errors (s.e.):\n"
+        f"  {e['dofs_compared']} DOFs: {100 * e['fraction_of_dof_time_points_within_3_se']:.2f} % "
+        f"of (DOF, time) points within 3 s.e.; largest deviation {e['max_mean_error_in_se']:.1f} "
+        f"(mean), {e['max_std_error_in_se']:.1f} (std)\n"
+        f"  meshing forces: {100 * f['fraction_of_mesh_time_points_within_3_se']:.2f} % within 3 s.e.; "
+        f"largest deviation {f['max_mean_error_in_se']:.1f} (mean), "
+        f"{f['max_std_error_in_se']:.1f} (std)\n"
+        f"  max contact-loss probability {e['contact_loss_probability_max']:.3g}; "
+        f"not compared (zero by symmetry): {quiet}"
+    )
 
 
 def format_sensitivities(sens: dict) -> str:
@@ -393,8 +476,10 @@ def format_sensitivities(sens: dict) -> str:
         f"d {q} / d(rim thickness, bolt k_r): autodiff [{grad[0]:.8e}, {grad[1]:.8e}], "
         f"extrapolated central differences [{fd[0]:.8e}, {fd[1]:.8e}]; "
         f"elasticities [{el[0]:+.3f}, {el[1]:+.3f}]"
-        for q, grad, fd, el in zip(sens["quantities"], sens["gradient"], sens["central_difference"],
-                                   sens["elasticity"]))
+        for q, grad, fd, el in zip(
+            sens["quantities"], sens["gradient"], sens["central_difference"], sens["elasticity"]
+        )
+    )
 
 
 def format_modal_table(rows: list[dict]) -> str:
@@ -407,9 +492,18 @@ def format_modal_table(rows: list[dict]) -> str:
 # ---------------------------------------------------------------------------------------------- figures
 
 # Thesis App. A DOFs beyond FIGURE_DOFS, in the order shown when they carry more than round-off.
-APPENDIX_DOFS = (("ring_node0_radial", "m"), ("ring_node1_radial", "m"), ("ring_node2_radial", "m"),
-                 ("ring_node2_rotation", "rad"), ("planet1_u", "m"), ("sun_x", "m"), ("carrier_x", "m"),
-                 ("planet1_xi", "m"), ("ring_x", "m"), ("ring_u", "m"))
+APPENDIX_DOFS = (
+    ("ring_node0_radial", "m"),
+    ("ring_node1_radial", "m"),
+    ("ring_node2_radial", "m"),
+    ("ring_node2_rotation", "rad"),
+    ("planet1_u", "m"),
+    ("sun_x", "m"),
+    ("carrier_x", "m"),
+    ("planet1_xi", "m"),
+    ("ring_x", "m"),
+    ("ring_u", "m"),
+)
 MC_MARKERS = dict(color="k", ls="none", marker="o", ms=2.0)  # MC is saved more sparsely than SL
 
 
@@ -428,15 +522,20 @@ def _sl_mc_curves(study: PlanetaryStudy, series, names, with_mc=True) -> tuple[d
     return times, curves
 
 
-def dof_figure(study: PlanetaryStudy, quantities=FIGURE_DOFS, title="Planetary gear train: SL vs MC "
-               "(thesis Figs. 3.5-3.8)", subtitle=""):
+def dof_figure(
+    study: PlanetaryStudy,
+    quantities=FIGURE_DOFS,
+    title="Planetary gear train: SL vs MC (thesis Figs. 3.5-3.8)",
+    subtitle="",
+):
     """Mean and std of DOFs: SL as lines, MC as markers at its saved times (None if no DOF is present)."""
     quantities = _present(quantities, study.sl_result())
     if not quantities:
         return None
     times, curves = _sl_mc_curves(study, _dof_series, [n for n, _ in quantities])
-    return plots.mean_std_figure(times, curves, quantities, title=title, styles={"MC": MC_MARKERS},
-                                 subtitle=subtitle)
+    return plots.mean_std_figure(
+        times, curves, quantities, title=title, styles={"MC": MC_MARKERS}, subtitle=subtitle
+    )
 
 
 def appendix_figure(study: PlanetaryStudy, max_panels: int = 6):
@@ -453,8 +552,13 @@ def contact_point_figure(study: PlanetaryStudy):
     if not names:
         return None
     times, curves = _sl_mc_curves(study, _obs_series, names)
-    return plots.mean_std_figure(times, curves, [(n, "m") for n in names], styles={"MC": MC_MARKERS},
-                                 title="Ring at the moving contact point of planet 1 (thesis Fig. 3.9)")
+    return plots.mean_std_figure(
+        times,
+        curves,
+        [(n, "m") for n in names],
+        styles={"MC": MC_MARKERS},
+        title="Ring at the moving contact point of planet 1 (thesis Fig. 3.9)",
+    )
 
 
 def mesh_force_figure(study: PlanetaryStudy, meshes=("sun_planet1", "ring_planet1")):
@@ -463,8 +567,14 @@ def mesh_force_figure(study: PlanetaryStudy, meshes=("sun_planet1", "ring_planet
     slow beat (:func:`mesh_force_zoom_figure` compares them)."""
     times, curves = _sl_mc_curves(study, _force_series, list(meshes), with_mc=False)
     dense = {label: {**plots.LINESTYLES.get(label, {}), "ls": "-", "lw": 0.5} for label in curves}
-    return plots.mean_std_figure(times, curves, [(n, "N") for n in meshes], second="mean square",
-                                 styles=dense, title="Equivalent meshing forces, SL (thesis Figs. 3.10-3.11)")
+    return plots.mean_std_figure(
+        times,
+        curves,
+        [(n, "N") for n in meshes],
+        second="mean square",
+        styles=dense,
+        title="Equivalent meshing forces, SL (thesis Figs. 3.10-3.11)",
+    )
 
 
 def mesh_force_zoom_figure(study: PlanetaryStudy, meshes=("sun_planet1", "ring_planet1"), mesh_periods=5.0):
@@ -479,10 +589,14 @@ def mesh_force_zoom_figure(study: PlanetaryStudy, meshes=("sun_planet1", "ring_p
         keep = (times[label] >= t0) & (times[label] <= t0 + width)
         times[label] = times[label][keep]
         curves[label] = {n: tuple(np.asarray(a)[keep] for a in ms) for n, ms in curves[label].items()}
-    return plots.mean_std_figure(times, curves, [(n, "N") for n in meshes], second="mean square",
-                                 styles={"MC": MC_MARKERS},
-                                 title=f"Meshing forces over {width / mesh_period:.3g} mesh periods: "
-                                       "SL vs MC")
+    return plots.mean_std_figure(
+        times,
+        curves,
+        [(n, "N") for n in meshes],
+        second="mean square",
+        styles={"MC": MC_MARKERS},
+        title=f"Meshing forces over {width / mesh_period:.3g} mesh periods: SL vs MC",
+    )
 
 
 def sweep_figure(results: dict[str, MomentResult], title: str, quantities=FIGURE_DOFS):
@@ -493,8 +607,14 @@ def sweep_figure(results: dict[str, MomentResult], title: str, quantities=FIGURE
     return plots.mean_std_figure(times, curves, quantities, title=title)
 
 
-def write_outputs(study: PlanetaryStudy, outdir, *, sweeps: dict | None = None, modal: list | None = None,
-                  sens: dict | None = None) -> list[Path]:
+def write_outputs(
+    study: PlanetaryStudy,
+    outdir,
+    *,
+    sweeps: dict | None = None,
+    modal: list | None = None,
+    sens: dict | None = None,
+) -> list[Path]:
     """Labelled results (.npz), summary.json and PNG figures into ``outdir``."""
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
@@ -504,22 +624,34 @@ def write_outputs(study: PlanetaryStudy, outdir, *, sweeps: dict | None = None, 
         written.append(save_results(outdir / f"planetary_sl_{crit}.npz", res, **attrs))
     if study.mc is not None:
         written.append(save_results(outdir / "planetary_mc.npz", study.mc, **attrs))
-    summary = dict(dt_s=study.dt, carrier_period_s=study.carrier_period, settings=study.settings,
-                   sl_vs_mc={c: error_summary(study, c) for c in study.sl} if study.mc is not None else None,
-                   roundoff_dofs=roundoff_dofs(study.sl_result()))
-    figures = [("planetary_dofs", lambda: dof_figure(study)),
-               ("planetary_more_dofs", lambda: appendix_figure(study)),
-               ("planetary_ring_contact", lambda: contact_point_figure(study)),
-               ("planetary_mesh_forces", lambda: mesh_force_figure(study))]
+    summary = dict(
+        dt_s=study.dt,
+        carrier_period_s=study.carrier_period,
+        settings=study.settings,
+        sl_vs_mc={c: error_summary(study, c) for c in study.sl} if study.mc is not None else None,
+        roundoff_dofs=roundoff_dofs(study.sl_result()),
+    )
+    figures = [
+        ("planetary_dofs", lambda: dof_figure(study)),
+        ("planetary_more_dofs", lambda: appendix_figure(study)),
+        ("planetary_ring_contact", lambda: contact_point_figure(study)),
+        ("planetary_mesh_forces", lambda: mesh_force_figure(study)),
+    ]
     if study.mc is not None:
         figures.append(("planetary_mesh_forces_zoom", lambda: mesh_force_zoom_figure(study)))
     for title, results in (sweeps or {}).items():
         slug = title.split(":")[0].lower().replace(" ", "_")
         figures.append((f"planetary_{slug}", functools.partial(sweep_figure, results, title)))
         names = [n for n, _ in _present(FIGURE_DOFS, next(iter(results.values())))]
-        summary[slug] = {label: {n: dict(max_std=float(np.max(_dof_series(r, n)[1])),
-                                         mean_at_end=float(_dof_series(r, n)[0][-1])) for n in names}
-                         for label, r in results.items()}
+        summary[slug] = {
+            label: {
+                n: dict(
+                    max_std=float(np.max(_dof_series(r, n)[1])), mean_at_end=float(_dof_series(r, n)[0][-1])
+                )
+                for n in names
+            }
+            for label, r in results.items()
+        }
     for name, build in figures:  # each figure is saved (and closed) as soon as it is drawn
         fig = build()
         if fig is not None:

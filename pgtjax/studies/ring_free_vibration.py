@@ -132,8 +132,9 @@ def ring_gear_free_vibration_table(
     for the assumed values and why the computed frequencies are ~30-55 % below the thesis's.
     """
     n = np.arange(2, 8)
-    kw = dict(pitch_radius=pitch_radius, face_width=face_width, n_elements=n_elements,
-              rotary_inertia=rotary_inertia)
+    kw = dict(
+        pitch_radius=pitch_radius, face_width=face_width, n_elements=n_elements, rotary_inertia=rotary_inertia
+    )
     f1 = flexural_frequencies(table_5_1_params("I", **kw), n)
     f2 = flexural_frequencies(table_5_1_params("II", **kw), n)
     t = THESIS_TABLE_5_3
@@ -177,8 +178,10 @@ def chapter6_ring_params(n_elements: int = 36, rotary_inertia: bool = True) -> R
 
 def format_table(table: dict) -> str:
     """Plain-text Table 5.3 comparison of :func:`ring_gear_free_vibration_table` (Hz and % difference)."""
-    lines = [f"{'n':>2s} {'Model I':>9s} {'thesis I':>9s} {'diff':>7s} {'Model II':>9s} {'thesis II':>9s} "
-             f"{'diff':>7s} {'ANSYS':>7s}"]
+    lines = [
+        f"{'n':>2s} {'Model I':>9s} {'thesis I':>9s} {'diff':>7s} {'Model II':>9s} {'thesis II':>9s} "
+        f"{'diff':>7s} {'ANSYS':>7s}"
+    ]
     for i, n in enumerate(table["n"]):
         lines.append(
             f"{int(n):2d} {table['model_I'][i]:9.1f} {table['thesis_model_I'][i]:9.1f} "

@@ -89,8 +89,15 @@ def _grid(p: rml.RingMovingLoadParams, revolutions: float, dt: float, n_saves: i
 
 
 def run_response(
-    p: rml.RingMovingLoadParams, *, revolutions: float = 1.0, dt: float = DEFAULT_DT, n_saves: int = 360,
-    n_modes: int | None = 36, n_samples: int = 0, key=None, progress: bool = False,
+    p: rml.RingMovingLoadParams,
+    *,
+    revolutions: float = 1.0,
+    dt: float = DEFAULT_DT,
+    n_saves: int = 360,
+    n_modes: int | None = 36,
+    n_samples: int = 0,
+    key=None,
+    progress: bool = False,
 ) -> tuple[MomentResult, MonteCarloResult | None]:
     """Moments (and optionally MC) of the contact point and the mid-node over ``revolutions`` (times >= 0
     cover the window; earlier saved times are the warm-up). ``dt`` [s] is rounded down to fit the window."""
@@ -101,8 +108,14 @@ def run_response(
     sl = solve_moments(system, **kw)
     mc = None
     if n_samples:
-        mc = monte_carlo(system, n_samples=n_samples, key=jax.random.key(0) if key is None else key,
-                         progress=progress, chunk_size=min(n_samples, 500), **kw)
+        mc = monte_carlo(
+            system,
+            n_samples=n_samples,
+            key=jax.random.key(0) if key is None else key,
+            progress=progress,
+            chunk_size=min(n_samples, 500),
+            **kw,
+        )
     return sl, mc
 
 
@@ -116,8 +129,14 @@ def point_series(result, which: str):
 
 
 def sweep(
-    p: rml.RingMovingLoadParams, speeds, *, steps: int = 1536, save_every: int = 16, n_modes: int | None = 36,
-    batch: int = 4, progress: bool = False,
+    p: rml.RingMovingLoadParams,
+    speeds,
+    *,
+    steps: int = 1536,
+    save_every: int = 16,
+    n_modes: int | None = 36,
+    batch: int = 4,
+    progress: bool = False,
 ) -> dict:
     """Fig. 6.7: maxima over one load period (a third of a revolution, after a warm-up of half a period) of
     the mid-node mean |u_r| and standard deviation [m], for each speed [rad/s]. Every speed uses the same
@@ -139,15 +158,27 @@ def sweep(
         period = 2.0 * jnp.pi / (3.0 * w)
         t0 = -0.5 * period
         u0, v0 = rml.static_initial_state(system, t0)
-        r = solve_moments(system, t0=t0, dt=1.5 * period / steps, n_steps=steps, save_every=save_every,
-                          initial_displacement=u0, initial_velocity=v0, throw=False)
+        r = solve_moments(
+            system,
+            t0=t0,
+            dt=1.5 * period / steps,
+            n_steps=steps,
+            save_every=save_every,
+            initial_displacement=u0,
+            initial_velocity=v0,
+            throw=False,
+        )
         j = r.dof(rml.MID_NAME)
         late = r.times >= -1e-9 * period
-        return (jnp.max(jnp.where(late, jnp.abs(r.mean_u[:, j]), 0.0)),
-                jnp.max(jnp.where(late, r.std_u[:, j], 0.0)))
+        return (
+            jnp.max(jnp.where(late, jnp.abs(r.mean_u[:, j]), 0.0)),
+            jnp.max(jnp.where(late, r.std_u[:, j], 0.0)),
+        )
 
     means, stds = [], []
-    if batch <= 1:  # a Python loop over speeds of one jitted run (the speed is a traced argument: one compile)
+    if (
+        batch <= 1
+    ):  # a Python loop over speeds of one jitted run (the speed is a traced argument: one compile)
         run = jax.jit(one)
         for i, w in enumerate(speeds):
             m, s = run(jnp.asarray(w))
@@ -159,7 +190,7 @@ def sweep(
         run = jax.vmap(one)
         batch = min(batch, speeds.size)
         for start in range(0, speeds.size, batch):
-            chunk = speeds[start:start + batch]
+            chunk = speeds[start : start + batch]
             padded = np.concatenate([chunk, np.full(batch - chunk.size, chunk[-1])])
             m, s = run(jnp.asarray(padded))
             means.append(np.asarray(m)[: chunk.size])
@@ -169,8 +200,14 @@ def sweep(
     means, stds = np.concatenate(means), np.concatenate(stds)
     if not (np.all(np.isfinite(means)) and np.all(np.isfinite(stds))):
         raise FloatingPointError("speed sweep produced NaN/inf: check the parameters and `steps`")
-    return dict(speeds=speeds, max_mean=means, max_std=stds, xi_m=means / means[0], xi_sd=stds / stds[0],
-                peaks=find_peaks(speeds, means))
+    return dict(
+        speeds=speeds,
+        max_mean=means,
+        max_std=stds,
+        xi_m=means / means[0],
+        xi_sd=stds / stds[0],
+        peaks=find_peaks(speeds, means),
+    )
 
 
 def find_peaks(speeds, values, prominence: float = 0.005, reach: int = 4) -> list[float]:
@@ -180,7 +217,7 @@ def find_peaks(speeds, values, prominence: float = 0.005, reach: int = 4) -> lis
     out = []
     for i in range(1, v.size - 1):
         if v[i] >= v[i - 1] and v[i] > v[i + 1]:
-            lo = max(v[max(0, i - reach): i].min(), v[i + 1: i + 1 + reach].min())
+            lo = max(v[max(0, i - reach) : i].min(), v[i + 1 : i + 1 + reach].min())
             if v[i] - lo > prominence * v[i]:
                 out.append(float(speeds[i]))
     return out
@@ -195,8 +232,9 @@ def supported_ring_frequencies(ring: RingParams) -> np.ndarray:
     return 2.0 * math.pi * np.asarray(f)
 
 
-def critical_speed_table(p: rml.RingMovingLoadParams, speed_range=(2.8, 50.0), n_groups: int = 2,
-                         thesis=THESIS_CRITICAL_SPEEDS) -> dict:
+def critical_speed_table(
+    p: rml.RingMovingLoadParams, speed_range=(2.8, 50.0), n_groups: int = 2, thesis=THESIS_CRITICAL_SPEEDS
+) -> dict:
     """Critical speeds ``omega_c = omega_k / j`` (module docstring) in ``speed_range`` for the lowest
     ``n_groups`` groups of (nearly) equal natural frequencies, split into the mesh family ``j = z_m q`` and
     the other load-pattern harmonics ``j = p N``; plus, for each thesis value, the nearest mesh-family speed."""
@@ -215,8 +253,15 @@ def critical_speed_table(p: rml.RingMovingLoadParams, speed_range=(2.8, 50.0), n
         q = 1
         while wa / (zm * q) >= lo:
             if wa / (zm * q) <= hi or wb / (zm * q) <= hi:
-                mesh.append(dict(group=gi + 1, harmonic=int(round(zm * q)), q=q,
-                                 speed_low=wa / (zm * q), speed_high=wb / (zm * q)))
+                mesh.append(
+                    dict(
+                        group=gi + 1,
+                        harmonic=int(round(zm * q)),
+                        q=q,
+                        speed_low=wa / (zm * q),
+                        speed_high=wb / (zm * q),
+                    )
+                )
             q += 1
     comparison = []
     for ts in thesis:
@@ -224,11 +269,23 @@ def critical_speed_table(p: rml.RingMovingLoadParams, speed_range=(2.8, 50.0), n
         if best is not None:
             inside = best["speed_low"] <= ts <= best["speed_high"]
             dist = 0.0 if inside else min(abs(ts - best["speed_low"]), abs(ts - best["speed_high"]))
-            comparison.append(dict(thesis=ts, group=best["group"], harmonic=best["harmonic"],
-                                   band=(best["speed_low"], best["speed_high"]), distance=dist,
-                                   implied_frequency=ts * best["harmonic"]))
-    return dict(groups_rad_s=groups, mesh_family=mesh, load_harmonic_spacing=N,
-                thesis_comparison=comparison, lowest_harmonic_in_range=int(math.ceil(groups[0][0] / hi)))
+            comparison.append(
+                dict(
+                    thesis=ts,
+                    group=best["group"],
+                    harmonic=best["harmonic"],
+                    band=(best["speed_low"], best["speed_high"]),
+                    distance=dist,
+                    implied_frequency=ts * best["harmonic"],
+                )
+            )
+    return dict(
+        groups_rad_s=groups,
+        mesh_family=mesh,
+        load_harmonic_spacing=N,
+        thesis_comparison=comparison,
+        lowest_harmonic_in_range=int(math.ceil(groups[0][0] / hi)),
+    )
 
 
 # ------------------------------------------------------------------------------------------------ study
@@ -247,9 +304,18 @@ class RingMovingLoadStudy:
 
 
 def run_study(
-    p: rml.RingMovingLoadParams | None = None, *, revolutions: float = 1.0 / 3.0, dt: float = DEFAULT_DT,
-    n_modes: int | None = 36, n_samples: int = 200, sweep_speeds=None, sweep_steps: int = 1536,
-    speeds=SPEEDS, noise_levels=(0.5, 1.0, 2.0), support_cases=(1, 2, 3), progress: bool = True,
+    p: rml.RingMovingLoadParams | None = None,
+    *,
+    revolutions: float = 1.0 / 3.0,
+    dt: float = DEFAULT_DT,
+    n_modes: int | None = 36,
+    n_samples: int = 200,
+    sweep_speeds=None,
+    sweep_steps: int = 1536,
+    speeds=SPEEDS,
+    noise_levels=(0.5, 1.0, 2.0),
+    support_cases=(1, 2, 3),
+    progress: bool = True,
 ) -> RingMovingLoadStudy:
     """All ch. 6 studies (module docstring). ``sweep_speeds=()`` skips the sweep; defaults are the quick size
     (a third of a revolution, 48 sweep speeds); ``revolutions=1`` and a finer sweep give the thesis's views."""
@@ -260,7 +326,9 @@ def run_study(
     by_speed = {}
     for w in speeds:
         say(f"  speed {w:g} rad/s")
-        by_speed[w] = run_response(p.replace(carrier_speed=w), revolutions=revolutions, dt=dt, n_modes=n_modes)[0]
+        by_speed[w] = run_response(
+            p.replace(carrier_speed=w), revolutions=revolutions, dt=dt, n_modes=n_modes
+        )[0]
     sw = None
     if sweep_speeds is None:
         sweep_speeds = np.linspace(2.8, 50.0, 48)
@@ -274,20 +342,39 @@ def run_study(
             q = rml.support_case(p, case).replace(carrier_speed=w)
             sup[(case, w)] = run_response(q, revolutions=revolutions, dt=dt, n_modes=n_modes)[0]
     crit = critical_speed_table(p)
-    return RingMovingLoadStudy(p, base, by_speed, sw, sup, tuple(noise_levels), crit, settings=dict(
-        revolutions=revolutions, dt_s=dt, n_modes=n_modes, n_samples=n_samples, sweep_steps=sweep_steps))
+    return RingMovingLoadStudy(
+        p,
+        base,
+        by_speed,
+        sw,
+        sup,
+        tuple(noise_levels),
+        crit,
+        settings=dict(
+            revolutions=revolutions, dt_s=dt, n_modes=n_modes, n_samples=n_samples, sweep_steps=sweep_steps
+        ),
+    )
 
 
-def load_params(source=None, *, n_elements: int | None = None,
-                support: int | None = None) -> rml.RingMovingLoadParams:
+def load_params(
+    source=None, *, n_elements: int | None = None, support: int | None = None
+) -> rml.RingMovingLoadParams:
     """The study's parameters: :func:`pgtjax.models.ring_moving_load.load_params` (``None``: the embedded
     ``ring_ch6.toml``; ``n_elements`` and the support case of Sec. 6.4.3 override the file's)."""
     return rml.load_params(source, n_elements=n_elements, support=support)
 
 
-def resolve_settings(p: rml.RingMovingLoadParams, *, revolutions: float = 1.0 / 3.0, n_modes: int = 36,
-                     n_samples: int = 200, n_sweep: int = 48, sweep_min: float = 2.8, sweep_max: float = 50.0,
-                     full: bool = False) -> dict:
+def resolve_settings(
+    p: rml.RingMovingLoadParams,
+    *,
+    revolutions: float = 1.0 / 3.0,
+    n_modes: int = 36,
+    n_samples: int = 200,
+    n_sweep: int = 48,
+    sweep_min: float = 2.8,
+    sweep_max: float = 50.0,
+    full: bool = False,
+) -> dict:
     """Checked keywords of :func:`run_study` from the command-line sizes: ``full`` is the thesis size (one
     revolution, 190 sweep speeds, >= 1000 MC samples), ``n_modes = 0`` the full FE model, ``n_sweep`` equally
     spaced sweep speeds from ``sweep_min`` to ``sweep_max`` (0 skips the sweep). A bad size is a
@@ -298,18 +385,28 @@ def resolve_settings(p: rml.RingMovingLoadParams, *, revolutions: float = 1.0 / 
         raise ValueError(f"`--revolutions` must be > 0, got {revolutions}")
     n_modes = None if n_modes == 0 else n_modes
     if n_modes is not None and n_modes > p.ring.n_dof:
-        raise ValueError(f"`--modes` must be <= 3 x n_elements = {p.ring.n_dof} (0 = full model), "
-                         f"got {n_modes}")
+        raise ValueError(
+            f"`--modes` must be <= 3 x n_elements = {p.ring.n_dof} (0 = full model), got {n_modes}"
+        )
     sweep_speeds = np.linspace(sweep_min, sweep_max, n_sweep) if n_sweep else np.array([])
     return dict(revolutions=revolutions, n_modes=n_modes, n_samples=n_samples, sweep_speeds=sweep_speeds)
 
 
-def format_header(p: rml.RingMovingLoadParams, *, revolutions: float, n_modes: int | None, n_samples: int,
-                  sweep_speeds, dt: float) -> str:
+def format_header(
+    p: rml.RingMovingLoadParams,
+    *,
+    revolutions: float,
+    n_modes: int | None,
+    n_samples: int,
+    sweep_speeds,
+    dt: float,
+) -> str:
     """One line describing a :func:`run_study` call (the CLI's first line)."""
-    return (f"pgtjax ring under moving loads (thesis ch. 6): L = {p.ring.n_elements}, N = {p.n_loads} loads, "
-            f"{'full model' if n_modes is None else f'{n_modes} modes'}, dt = {dt:g} s, "
-            f"{revolutions:g} revolution(s), MC {n_samples} samples, sweep {len(sweep_speeds)} speeds")
+    return (
+        f"pgtjax ring under moving loads (thesis ch. 6): L = {p.ring.n_elements}, N = {p.n_loads} loads, "
+        f"{'full model' if n_modes is None else f'{n_modes} modes'}, dt = {dt:g} s, "
+        f"{revolutions:g} revolution(s), MC {n_samples} samples, sweep {len(sweep_speeds)} speeds"
+    )
 
 
 # ------------------------------------------------------------------------------------------------ plots
@@ -352,10 +449,17 @@ def sweep_figure(sw: dict, critical: dict | None = None, thesis=THESIS_CRITICAL_
         for ax in (a0, a1):
             if critical:
                 for i, r in enumerate(critical["mesh_family"]):
-                    ax.axvspan(r["speed_low"], r["speed_high"], color="tab:orange", alpha=0.3,
-                               label="ω_k / (36 q), this ring" if i == 0 else None)
+                    ax.axvspan(
+                        r["speed_low"],
+                        r["speed_high"],
+                        color="tab:orange",
+                        alpha=0.3,
+                        label="ω_k / (36 q), this ring" if i == 0 else None,
+                    )
             for i, ts in enumerate(thesis):
-                ax.axvline(ts, color="tab:red", ls=":", lw=0.9, label="thesis critical speeds" if i == 0 else None)
+                ax.axvline(
+                    ts, color="tab:red", ls=":", lw=0.9, label="thesis critical speeds" if i == 0 else None
+                )
         a0.set_ylabel("ξ_m")
         a1.set_ylabel("ξ_sd")
         a1.set_xlabel("load speed ω_c (rad/s)")
@@ -414,12 +518,21 @@ def _summary(study: RingMovingLoadStudy) -> dict:
     for w, r in study.speeds.items():
         _, m, s = point_series(r, "mid")
         _, mc_, sc = point_series(r, "contact")
-        mid[str(w)] = dict(mid_max_abs_mean_m=float(np.max(np.abs(m))), mid_max_std_m=float(np.max(s)),
-                           contact_max_abs_mean_m=float(np.max(np.abs(mc_))), contact_max_std_m=float(np.max(sc)))
+        mid[str(w)] = dict(
+            mid_max_abs_mean_m=float(np.max(np.abs(m))),
+            mid_max_std_m=float(np.max(s)),
+            contact_max_abs_mean_m=float(np.max(np.abs(mc_))),
+            contact_max_std_m=float(np.max(sc)),
+        )
     sup = {f"case{c}_{w:g}": float(np.max(point_series(r, "mid")[2])) for (c, w), r in study.supports.items()}
-    out = dict(settings=study.settings, speeds=mid, thesis_mid_node_max=THESIS_MID_NODE_MAX,
-               supports_mid_max_std_m=sup, critical_speeds=study.critical,
-               thesis_critical_speeds=list(THESIS_CRITICAL_SPEEDS))
+    out = dict(
+        settings=study.settings,
+        speeds=mid,
+        thesis_mid_node_max=THESIS_MID_NODE_MAX,
+        supports_mid_max_std_m=sup,
+        critical_speeds=study.critical,
+        thesis_critical_speeds=list(THESIS_CRITICAL_SPEEDS),
+    )
     sl, mc = study.base
     if mc is not None:
         z = []
@@ -429,11 +542,21 @@ def _summary(study: RingMovingLoadStudy) -> dict:
             sd = np.asarray(mc.std_u[:, j])
             # skip times where the spread is still ~0 (start of the run): the standard errors vanish there
             ok = (sd > 1e-3 * sd.max()) & (np.asarray(mc.times) >= 0.0)
-            z.append(dict(dof=name,
-                          max_mean_z=float(np.max(np.abs(np.asarray(mc.mean_u[ok, j] - sl.mean_u[ok, j]))
-                                                  / np.asarray(se_m[ok, j]))),
-                          max_std_z=float(np.max(np.abs(np.asarray(mc.std_u[ok, j] - sl.std_u[ok, j]))
-                                                 / np.asarray(se_s[ok, j])))))
+            z.append(
+                dict(
+                    dof=name,
+                    max_mean_z=float(
+                        np.max(
+                            np.abs(np.asarray(mc.mean_u[ok, j] - sl.mean_u[ok, j])) / np.asarray(se_m[ok, j])
+                        )
+                    ),
+                    max_std_z=float(
+                        np.max(
+                            np.abs(np.asarray(mc.std_u[ok, j] - sl.std_u[ok, j])) / np.asarray(se_s[ok, j])
+                        )
+                    ),
+                )
+            )
         out["mc_vs_recursion"] = z
     if study.sweep is not None:
         sw = study.sweep
@@ -447,8 +570,12 @@ def write_outputs(study: RingMovingLoadStudy, outdir) -> list[Path]:
     outdir.mkdir(parents=True, exist_ok=True)
     p = study.params
     written = []
-    attrs = dict(study="ring_moving_load", n_loads=p.n_loads, dt_s=study.settings.get("dt_s"),
-                 units="u_r in m, inward positive; times in s")
+    attrs = dict(
+        study="ring_moving_load",
+        n_loads=p.n_loads,
+        dt_s=study.settings.get("dt_s"),
+        units="u_r in m, inward positive; times in s",
+    )
     sl, mc = study.base
     w0 = float(p.carrier_speed)
     written.append(save_results(outdir / "base_sl.npz", sl, carrier_speed_rad_s=w0, **attrs))
@@ -458,20 +585,28 @@ def write_outputs(study: RingMovingLoadStudy, outdir) -> list[Path]:
         curves = {"MC": (mc, w0), **curves}
     names = {"SL force": "stochastic Newmark", "MC": f"Monte Carlo ({mc.n_samples if mc else 0})"}
     for which, fig_no in (("contact", "6.3"), ("mid", "6.4")):
-        fig = response_figure({names[k]: v for k, v in curves.items()}, which,
-                              f"Fig. {fig_no}: {which} point, ω_c = {w0:g} rad/s")
+        fig = response_figure(
+            {names[k]: v for k, v in curves.items()},
+            which,
+            f"Fig. {fig_no}: {which} point, ω_c = {w0:g} rad/s",
+        )
         written.append(plots.save(fig, outdir / f"fig{fig_no.replace('.', '_')}_{which}_base.png"))
     for w, r in study.speeds.items():
         written.append(save_results(outdir / f"speed_{w:g}.npz", r, carrier_speed_rad_s=w, **attrs))
     for which, fig_no in (("contact", "6.5"), ("mid", "6.6")):
-        fig = response_figure({f"ω_c = {w:g} rad/s": (r, w) for w, r in study.speeds.items()}, which,
-                              f"Fig. {fig_no}: {which} point at three load speeds")
+        fig = response_figure(
+            {f"ω_c = {w:g} rad/s": (r, w) for w, r in study.speeds.items()},
+            which,
+            f"Fig. {fig_no}: {which} point at three load speeds",
+        )
         written.append(plots.save(fig, outdir / f"fig{fig_no.replace('.', '_')}_{which}_speeds.png"))
     if study.sweep is not None:
         written.append(plots.save(sweep_figure(study.sweep, study.critical), outdir / "fig6_7_sweep.png"))
     # Fig. 6.8: noise levels (exact scaling of the linear system's standard deviation)
     with plots.plt.rc_context(plots.STYLE):
-        fig, axes = plots.plt.subplots(1, len(study.speeds), figsize=(3.0 * len(study.speeds), 2.8), squeeze=False)
+        fig, axes = plots.plt.subplots(
+            1, len(study.speeds), figsize=(3.0 * len(study.speeds), 2.8), squeeze=False
+        )
         b0 = float(p.noise_intensity[0])
         for ax, (w, r) in zip(axes[0], study.speeds.items()):
             t, _, s = point_series(r, "mid")
@@ -501,10 +636,16 @@ def write_outputs(study: RingMovingLoadStudy, outdir) -> list[Path]:
             fig.tight_layout()
         written.append(plots.save(fig, outdir / "fig6_9_supports.png"))
         for (c, w), r in study.supports.items():
-            written.append(save_results(outdir / f"support_case{c}_{w:g}.npz", r, carrier_speed_rad_s=w,
-                                        support_case=c, **attrs))
-    written.append(plots.save(mode_shape_figure(p.ring, 6, "bolted ch. 6 ring: lowest modes"),
-                              outdir / "modes_ch6_ring.png"))
+            written.append(
+                save_results(
+                    outdir / f"support_case{c}_{w:g}.npz", r, carrier_speed_rad_s=w, support_case=c, **attrs
+                )
+            )
+    written.append(
+        plots.save(
+            mode_shape_figure(p.ring, 6, "bolted ch. 6 ring: lowest modes"), outdir / "modes_ch6_ring.png"
+        )
+    )
     path = outdir / "summary.json"
     path.write_text(json.dumps(_summary(study), indent=2, default=float))
     written.append(path)
@@ -513,12 +654,16 @@ def write_outputs(study: RingMovingLoadStudy, outdir) -> list[Path]:
 
 def format_critical_table(crit: dict) -> str:
     """Plain-text comparison of the thesis's critical speeds with the mesh family omega_k / (36 q)."""
-    lines = ["natural-frequency groups of the bolted ring (rad/s): "
-             + ", ".join(f"{a:.0f}-{b:.0f}" for a, b in crit["groups_rad_s"]),
-             f"{'thesis (rad/s)':>14s} {'harmonic j':>10s} {'band omega_k/j (rad/s)':>24s} {'distance':>9s}"]
+    lines = [
+        "natural-frequency groups of the bolted ring (rad/s): "
+        + ", ".join(f"{a:.0f}-{b:.0f}" for a, b in crit["groups_rad_s"]),
+        f"{'thesis (rad/s)':>14s} {'harmonic j':>10s} {'band omega_k/j (rad/s)':>24s} {'distance':>9s}",
+    ]
     for r in crit["thesis_comparison"]:
-        lines.append(f"{r['thesis']:14.2f} {r['harmonic']:10d} {r['band'][0]:11.2f} - {r['band'][1]:9.2f} "
-                     f"{r['distance']:9.2f}")
+        lines.append(
+            f"{r['thesis']:14.2f} {r['harmonic']:10d} {r['band'][0]:11.2f} - {r['band'][1]:9.2f} "
+            f"{r['distance']:9.2f}"
+        )
     return "\n".join(lines)
 
 
@@ -526,8 +671,9 @@ def format_summary(study: RingMovingLoadStudy) -> str:
     """Plain-text summary of a study: :func:`format_critical_table` and the peaks of the speed sweep."""
     text = format_critical_table(study.critical)
     if study.sweep is not None:
-        text += ("\npeaks of the maximum mean in the sweep (rad/s): "
-                 + (", ".join(f"{w:.2f}" for w in study.sweep["peaks"]) or "none"))
+        text += "\npeaks of the maximum mean in the sweep (rad/s): " + (
+            ", ".join(f"{w:.2f}" for w in study.sweep["peaks"]) or "none"
+        )
     return text
 
 
@@ -542,18 +688,30 @@ def modal_table(p: rml.RingMovingLoadParams | None = None, n_modes: int = 24) ->
     f, x = ring_natural_frequencies(p.ring)
     f, x = np.asarray(f), np.asarray(x)
     k = min(n_modes, f.size) if n_modes else f.size
-    rows = [dict(mode=i + 1, frequency_hz=float(f[i]), angular_frequency_rad_s=float(2 * np.pi * f[i]),
-                 wave_number=nodal_diameter(x[:, i])) for i in range(k)]
+    rows = [
+        dict(
+            mode=i + 1,
+            frequency_hz=float(f[i]),
+            angular_frequency_rad_s=float(2 * np.pi * f[i]),
+            wave_number=nodal_diameter(x[:, i]),
+        )
+        for i in range(k)
+    ]
     return dict(n_elements=p.ring.n_elements, support_nodes=list(p.ring.support_nodes), modes=rows)
 
 
 def format_modal_table(p: rml.RingMovingLoadParams, table: dict) -> str:
     """Plain-text :func:`modal_table` of ``p``'s ring, headed by its dimensions and supports."""
     r = p.ring
-    lines = [f"ring R = {float(r.radius) * 1e3:.2f} mm, h = {float(r.thickness) * 1e3:.2f} mm, "
-             f"b = {float(r.face_width) * 1e3:.1f} mm, L = {r.n_elements} elements, "
-             f"supports at nodes {list(r.support_nodes)}",
-             f"{'mode':>4s} {'f (Hz)':>12s} {'omega (rad/s)':>14s} {'n':>3s}"]
-    lines += [f"{row['mode']:4d} {row['frequency_hz']:12.2f} {row['angular_frequency_rad_s']:14.1f} "
-              f"{row['wave_number']:3d}" for row in table["modes"]]
+    lines = [
+        f"ring R = {float(r.radius) * 1e3:.2f} mm, h = {float(r.thickness) * 1e3:.2f} mm, "
+        f"b = {float(r.face_width) * 1e3:.1f} mm, L = {r.n_elements} elements, "
+        f"supports at nodes {list(r.support_nodes)}",
+        f"{'mode':>4s} {'f (Hz)':>12s} {'omega (rad/s)':>14s} {'n':>3s}",
+    ]
+    lines += [
+        f"{row['mode']:4d} {row['frequency_hz']:12.2f} {row['angular_frequency_rad_s']:14.1f} "
+        f"{row['wave_number']:3d}"
+        for row in table["modes"]
+    ]
     return "\n".join(lines)
