@@ -252,6 +252,11 @@ def _check_shape(name: str, value, shape: tuple[int, ...]) -> None:
 def validate_system(system: System, t0: float = 0.0) -> None:
     """Raise ``ValueError`` for inconsistent shapes, non-finite values or a mass matrix that is not
     symmetric positive definite. Value checks are skipped for traced arrays (inside ``jit``/``grad``)."""
+    if not jax.config.jax_enable_x64:
+        raise ValueError(
+            "pgtjax needs 64-bit floats, but `jax_enable_x64` was switched off after pgtjax was imported "
+            "(mesh stiffness times deflection is beyond float32); call jax.config.update('jax_enable_x64', True)"
+        )
     if not isinstance(system, System):
         raise ValueError(f"`system` must be a pgtjax.System, got {type(system).__name__}")
     n = system.n_dof

@@ -73,3 +73,14 @@ def test_unconverged_fixed_point_names_the_time():
     )
     with pytest.raises(pg.SolverError, match=r"did not converge.* t = 0\.1 s.*max_iter"):
         pg.solve_moments(system, dt=0.01, n_steps=20, save_every=10, max_iter=1, rtol=1e-15)
+
+
+def test_float32_is_refused_plainly():
+    system = _system()
+    jax.config.update("jax_enable_x64", False)
+    try:
+        with pytest.raises(ValueError, match="jax_enable_x64"):
+            pg.solve_moments(system, **KW)
+    finally:
+        jax.config.update("jax_enable_x64", True)
+    assert pg.solve_moments(system, dt=0.01, n_steps=10).mean_u.dtype == jnp.float64
