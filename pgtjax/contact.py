@@ -299,7 +299,7 @@ class ContactLaw(eqx.Module):
         about ``eps (mu / sigma)^2`` relative accuracy, ample for SL's sigma but not for sigma -> 0."""
         criterion = as_criterion(criterion)
         f_0 = self.gaussian_expectation(self.force, mu, sigma, inputs, b)
-        k_force = self.gaussian_expectation(self.stiffness, mu, sigma, inputs, b)
+        k_force = self.mean_stiffness(mu, sigma, inputs, b)
         if criterion.potential_reference is None:
             return criterion.coefficients(f_0, k_force, None)
         pot = self.potential
@@ -309,6 +309,19 @@ class ContactLaw(eqx.Module):
         safe = jnp.where(sigma > 0.0, sigma, 1.0)
         lin = criterion.coefficients(f_0, k_force, excess / safe**2)
         return Linearization(jnp.where(sigma > 0.0, lin.k_e, k_force), lin.f_0)
+
+    def mean_stiffness(self, mu, sigma, inputs, b):
+        """``E[f'(delta)]`` (N/m) for ``delta ~ N(mu, sigma^2)``. Default: Stein's identity
+        ``E[(delta - mu) f(delta)] / sigma^2`` by quadrature of the force, which is continuous where a law's
+        stiffness jumps (the flank edge), so the result and its derivatives are continuous in ``(mu, sigma)``
+        as the SL Newton iteration needs (quadrature of a jumping ``f'`` is not); ``f'(mu)`` at ``sigma = 0``."""
+        mu, sigma = jnp.asarray(mu, jnp.float64), jnp.asarray(sigma, jnp.float64)
+        positive = sigma > 0.0
+        safe = jnp.where(positive, sigma, 1.0)
+        moment = self.gaussian_expectation(
+            lambda d, i, bb: (d - mu[None]) * self.force(d, i, bb), mu, safe, inputs, b
+        )
+        return jnp.where(positive, moment / safe**2, self.stiffness(mu, inputs, b))
 
     def force_moments(self, mu, sigma, inputs, b) -> tuple[jnp.ndarray, jnp.ndarray]:
         """Mean and standard deviation of f(delta) for delta ~ N(mu, sigma^2) (default: quadrature)."""
@@ -369,7 +382,10 @@ class Backlash(ContactLaw):
         # per flank: P(contact), E[(flank deflection)+] and, for the energy criteria, the excess second
         # moment ((E[P] - P(mu)) / sigma^2 cancellation-free, or E[P] / sigma^2 about the origin for
         # "energy_origin": Eq. 4.43 as printed, which grows like (mu - b)^2 / sigma^2 in permanent contact)
-        stats = _flank_statistics(criterion.name, offset, sigma)
+        flank_mode = {None: "force", "mean": "energy", "origin": "energy_origin"}[
+            criterion.potential_reference
+        ]
+        stats = _flank_statistics(flank_mode, offset, sigma)
         cdf, mean_part = stats[0], stats[1]
         contact_probability = cdf[0] + cdf[1]  # Eq. 3.39 / k
         f_0 = k * (mean_part[0] - mean_part[1])

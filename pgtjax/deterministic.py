@@ -6,6 +6,7 @@ solve in contact space because the contacts are the only nonlinearity)."""
 from __future__ import annotations
 
 import numbers
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -135,46 +136,76 @@ def static_equilibrium(
         initial_guess = jnp.asarray(initial_guess, jnp.float64)
         if initial_guess.shape != (n,):
             raise ValueError(f"`initial_guess` must have shape ({n},), got {initial_guess.shape}")
-    return _static_solve(
+    u, err, iterations = _static_solve(
         system, jnp.asarray(t, jnp.float64), v, initial_guess, tol=float(tol), max_iter=max_iter
+    )
+    failure = (
+        f"static_equilibrium: Newton did not reach a relative residual of {tol:g} in {max_iter} iterations "
+        "(a NaN, a mechanism held only by open contacts, or a load no contact can carry); check the loads and "
+        "stiffnesses, or raise `max_iter`"
+    )
+    if not is_concrete((u, err)):
+        return eqx.error_if(u, ~(err <= tol), failure)
+    if not float(err) <= tol:
+        raise SolverError(
+            f"{failure} (at t = {float(t):.6g} s: {float(err):.3g} after {int(iterations)} iterations)"
+        )
+    return u
+
+
+class _StaticProblem(NamedTuple):
+    """``K u + G f(G^T u; inputs, b) = F`` at one instant: the system's time functions already evaluated, so
+    that their parameters (closed over or not) are differentiated through the arrays here."""
+
+    stiffness: jax.Array  # (n, n) K(t), N/m
+    load: jax.Array  # (n,) F(t) - C(t) v, N
+    direction: jax.Array  # (n, nc)
+    inputs: object  # the contact law's inputs at t, every leaf (nc,)
+    clearance: jax.Array  # (nc,) m
+
+
+def _static_problem(system: System, t, v) -> _StaticProblem:
+    snap = snapshot(system, t)
+    return _StaticProblem(
+        snap.stiffness,
+        snap.load - snap.damping @ v,
+        snap.direction,
+        snap.contact_inputs,
+        system.contact_clearance(),
     )
 
 
-def _static_residual(u, system: System, t, v):
-    """``K u + G f(G^T u) - F + C v`` at time ``t`` (N)."""
-    snap = snapshot(system, t)
-    r = snap.stiffness @ u - snap.load + snap.damping @ v
-    if system.n_contacts:
-        g = snap.direction
-        r = r + g @ system.contacts.law.force(g.T @ u, snap.contact_inputs, system.contacts.clearance)
+def _static_residual(u, prob: _StaticProblem, law):
+    """``K u + G f(G^T u) - F`` (N)."""
+    r = prob.stiffness @ u - prob.load
+    if law is not None:
+        g = prob.direction
+        r = r + g @ law.force(g.T @ u, prob.inputs, prob.clearance)
     return r
 
 
-def _static_tangent(u, system: System, t):
+def _static_tangent(u, prob: _StaticProblem, law):
     """The tangent stiffness ``K + G diag(f'(G^T u)) G^T`` (N/m)."""
-    snap = snapshot(system, t)
-    if not system.n_contacts:
-        return snap.stiffness
-    g = snap.direction
-    k_t = system.contacts.law.stiffness(g.T @ u, snap.contact_inputs, system.contacts.clearance)
-    return snap.stiffness + (g * k_t[None, :]) @ g.T
+    if law is None:
+        return prob.stiffness
+    g = prob.direction
+    return prob.stiffness + (g * law.stiffness(g.T @ u, prob.inputs, prob.clearance)[None, :]) @ g.T
 
 
 @eqx.filter_custom_jvp
-def _static_implicit(u_star, system, t, v):
+def _static_implicit(u_star, prob, law):
     """Identity on the converged static solution; its tangent is ``-J^-1 dR`` (implicit function theorem)."""
     return u_star
 
 
 @_static_implicit.def_jvp
 def _static_implicit_jvp(primals, tangents):
-    u_star, system, t, v = primals
-    _, d_system, d_t, d_v = tangents
-    dynamic, static = eqx.partition((system, t, v), eqx.is_inexact_array)
+    u_star, prob, law = primals
+    dynamic, static = eqx.partition((prob, law), eqx.is_inexact_array)
     d_dynamic = jax.tree.map(
-        lambda d, p: p if p is None else (jnp.zeros_like(p) if d is None else d),
-        (d_system, d_t, d_v),
+        lambda p, d: None if p is None else (jnp.zeros_like(p) if d is None else d),
         dynamic,
+        tangents[1:],
         is_leaf=lambda x: x is None,
     )
 
@@ -182,47 +213,44 @@ def _static_implicit_jvp(primals, tangents):
         return _static_residual(u_star, *eqx.combine(dyn, static))
 
     _, d_residual = jax.jvp(residual, (dynamic,), (d_dynamic,))
-    return u_star, -jnp.linalg.solve(_static_tangent(u_star, system, t), d_residual)
+    return u_star, -jnp.linalg.solve(_static_tangent(u_star, prob, law), d_residual)
+
+
+def _stop_gradient(tree):
+    return jax.tree.map(lambda x: jax.lax.stop_gradient(x) if eqx.is_array(x) else x, tree)
 
 
 @eqx.filter_jit
 def _static_solve(system, t, v, u_init, *, tol, max_iter):
-    frozen = jax.tree.map(lambda x: jax.lax.stop_gradient(x) if eqx.is_array(x) else x, (system, t, v))
-    sys_c, t_c, v_c = frozen
-    snap = snapshot(sys_c, t_c)
-    f_eff = snap.load - snap.damping @ v_c
-    scale = jnp.max(jnp.abs(f_eff)) + 1e-300
+    """``(u, relative residual, iterations)``; ``u`` differentiable through :func:`_static_implicit`."""
+    prob = _static_problem(system, t, v)
+    law = system.contacts.law if system.n_contacts else None
+    prob_c, law_c = _stop_gradient((prob, law))
+    scale = jnp.max(jnp.abs(prob_c.load)) + 1e-300
     if u_init is None:
-        k = snap.stiffness
-        if sys_c.n_contacts:
-            g = snap.direction
-            kc, b = sys_c.contact_stiffness(t_c), sys_c.contacts.clearance
+        k = prob_c.stiffness
+        if law_c is not None:
+            g, b = prob_c.direction, prob_c.clearance
+            kc = law_c.closed_stiffness(prob_c.inputs, b)
             closed = k + (g * kc[None, :]) @ g.T
-            u_init = jnp.linalg.solve(closed, f_eff)
+            u_init = jnp.linalg.solve(closed, prob_c.load)
             # close every contact on the flank it is pushed to, offset by the clearance: k (delta - b sign)
-            u_init = jnp.linalg.solve(closed, f_eff + g @ (kc * b * jnp.sign(g.T @ u_init)))
+            u_init = jnp.linalg.solve(closed, prob_c.load + g @ (kc * b * jnp.sign(g.T @ u_init)))
         else:
-            u_init = jnp.linalg.solve(k, f_eff)
+            u_init = jnp.linalg.solve(k, prob_c.load)
     u_init = jax.lax.stop_gradient(u_init)
 
     def error(u):
-        return jnp.max(jnp.abs(_static_residual(u, sys_c, t_c, v_c))) / scale
+        return jnp.max(jnp.abs(_static_residual(u, prob_c, law_c))) / scale
 
     def body(state):
         u, it, _ = state
-        u = u - jnp.linalg.solve(_static_tangent(u, sys_c, t_c), _static_residual(u, sys_c, t_c, v_c))
+        u = u - jnp.linalg.solve(_static_tangent(u, prob_c, law_c), _static_residual(u, prob_c, law_c))
         return u, it + 1, error(u)
 
     def cond(state):
         _, it, err = state
-        return (it < max_iter) & ~(err <= tol)  # a NaN residual stops too, and is reported below
+        return (it < max_iter) & (err > tol)  # a NaN residual stops the loop too, and is reported
 
     u, iterations, err = jax.lax.while_loop(cond, body, (u_init, jnp.array(0), error(u_init)))
-    u = eqx.error_if(
-        u,
-        ~(err <= tol),
-        f"static equilibrium: Newton did not reach a relative residual of {tol:g} in {max_iter} iterations "
-        "(NaN, a mechanism held only by open contacts, or a load no contact can carry); check the loads and "
-        "stiffnesses, or raise `max_iter`",
-    )
-    return _static_implicit(u, system, t, v)
+    return _static_implicit(u, prob, law), err, iterations

@@ -41,7 +41,6 @@ import numpy as np
 
 from .newmark import (
     AbstractIntegrator,
-    NewmarkBridge,
     Snapshot,
     effective_stiffness,
     from_displacement,
@@ -194,7 +193,7 @@ def eigen_sample_step(
     if draws.shape[1]:
         noise, v_noise = integrator.noise_matrices(system, s0, s1, h)
         z_noise = prop.force_input @ noise
-        if isinstance(integrator, NewmarkBridge):
+        if integrator.has_velocity_noise:
             z_noise = z_noise + (0.5 * h) * (prop.basis_inverse[:, system.n_dof :] @ v_noise)
         columns.append(draws)
         rows.append(z_noise.T)

@@ -44,7 +44,6 @@ from .newmark import (
     AbstractIntegrator,
     ConstantPropagator,
     Snapshot,
-    effective_stiffness,
     resolve_integrator,
     snapshot,
 )
@@ -261,13 +260,18 @@ def _law_parameter_tangent(law, criterion: str, z, data: _StepData, d_law) -> Li
     """Tangent of the law's ``(k_e, f_0)`` at fixed ``z`` and step data along a tangent ``d_law`` of the law's
     own parameters (its array fields, e.g. a mesh-stiffness table)."""
     nc = data.clearance.shape[0]
-    d_law = _materialize(d_law, law)
 
     def linearize(law_params):
         return law_params.linearize(z[:nc], z[nc:], data.inputs, data.clearance, criterion)
 
     dynamic, static = eqx.partition(law, eqx.is_inexact_array)
-    d_dynamic = eqx.filter(d_law, eqx.is_inexact_array)
+    # zero tangents for the law's undifferentiated arrays; none for its non-array fields (floats, strings)
+    d_dynamic = jax.tree.map(
+        lambda p, t: None if p is None else (jnp.zeros_like(p) if t is None else t),
+        dynamic,
+        d_law,
+        is_leaf=lambda x: x is None,
+    )
     return jax.jvp(lambda dyn: linearize(eqx.combine(dyn, static)), (dynamic,), (d_dynamic,))[1]
 
 
@@ -699,7 +703,9 @@ def _solve_moments_jit(
     lu_const = None
     if prop is not None and not constant_path:
         lu_const = jax.scipy.linalg.lu_factor(
-            effective_stiffness(system.mass, system.damping, system.stiffness, dt)
+            integrator.effective_matrices(
+                system.mass, system.damping, system.stiffness, system.stiffness, dt
+            )[0]
         )
 
     def step(c, step_number, _):

@@ -23,7 +23,15 @@ import numpy as np
 from ._failure import SolverError, raise_if_nonfinite
 from ._loop import saved_scan
 from .eigenbasis import eigen_initial_state, eigen_physical, eigen_propagator, eigen_sample_step
-from .newmark import AbstractIntegrator, initial_sample_state, resolve_integrator, sample_step, snapshot
+from .newmark import (
+    AbstractIntegrator,
+    Newmark,
+    NewmarkBridge,
+    initial_sample_state,
+    resolve_integrator,
+    sample_step,
+    snapshot,
+)
 from .results import MonteCarloResult
 from .system import Observables, System, check_count, initial_state, validate_system, validate_time_grid
 
@@ -210,7 +218,9 @@ def monte_carlo(
         raise ValueError(f"`propagation` must be one of {PROPAGATIONS}, got {propagation!r}")
     eigen = None
     if propagation != "physical":
-        eigen, reason = eigen_propagator(system, dt)
+        # the eigenbasis is that of the built-in average-acceleration map; another integrator's is not known
+        builtin = type(integrator) in (Newmark, NewmarkBridge)
+        eigen, reason = eigen_propagator(system, dt) if builtin else (None, "a custom integrator is used")
         if eigen is None and propagation == "eigen":
             raise ValueError(f"`propagation='eigen'` is not available for this system: {reason}")
     n = system.n_dof

@@ -60,10 +60,15 @@ class AbstractIntegrator(eqx.Module):
 
     A subclass gives the step's matrices (:meth:`step_matrices`, :meth:`noise_matrices`) and the number of
     standard normals drawn per step; :meth:`init` forms once per run what does not change from step to step.
-    The solvers take one with ``integrator=`` (default :class:`Newmark`).
+    The solvers take one with ``integrator=`` (default :class:`Newmark`). The solvers' state update assumes the
+    average-acceleration kinematics ``v1 = (2/h)(u1 - u0) - v0`` (+ the velocity noise), so a subclass varies
+    the effective-stiffness matrices and the noise treatment within that family; Monte Carlo's
+    eigen-coordinate path is used for the two built-in integrators only.
     """
 
     name: ClassVar[str]
+    #: whether ``noise_matrices``' velocity correction can be nonzero (else the solvers skip that product)
+    has_velocity_noise: ClassVar[bool] = True
 
     @abc.abstractmethod
     def noise_dimension(self, system: System) -> int:
@@ -85,12 +90,20 @@ class _AverageAcceleration(AbstractIntegrator):
     """Average-acceleration Newmark (beta = 1/4, gamma = 1/2) in effective-stiffness form (thesis Eqs.
     3.45-3.51 / 4.52-4.60, module docstring); the subclasses differ in how the noise enters a step."""
 
+    def effective_matrices(self, mass, damping, stiffness0, stiffness1, h):
+        """``(K_eff, E, D)`` of a step from the damping over the step and the stiffness at its two ends: the
+        one place the scheme's algebra lives (override it for a variant; every solver path uses it)."""
+        return (
+            effective_stiffness(mass, damping, stiffness1, h),
+            from_displacement(mass, damping, stiffness0, h),
+            from_velocity(mass, h),
+        )
+
     def step_matrices(self, system: System, s0: Snapshot, s1: Snapshot, h) -> StepMatrices:
         c_mid = 0.5 * (s0.damping + s1.damping)
-        k_eff = effective_stiffness(system.mass, c_mid, s1.stiffness, h)
-        from_u = from_displacement(system.mass, c_mid, s0.stiffness, h)
+        k_eff, from_u, from_v = self.effective_matrices(system.mass, c_mid, s0.stiffness, s1.stiffness, h)
         noise, v_noise = self.noise_matrices(system, s0, s1, h)
-        return StepMatrices(k_eff, from_u, from_velocity(system.mass, h), noise, v_noise)
+        return StepMatrices(k_eff, from_u, from_v, noise, v_noise)
 
     def init(self, system: System, h) -> ConstantPropagator | None:
         """:class:`ConstantPropagator` of ``system`` for step ``h``, or None if K or C is time-varying."""
@@ -98,8 +111,9 @@ class _AverageAcceleration(AbstractIntegrator):
             return None
         M, C, K = system.mass, system.damping, system.stiffness
         n = M.shape[0]
-        a_inv = jnp.linalg.solve(effective_stiffness(M, C, K, h), jnp.eye(n, dtype=M.dtype))
-        rhs = jnp.concatenate([from_displacement(M, C, K, h), from_velocity(M, h)], axis=1)
+        k_eff, from_u, from_v = self.effective_matrices(M, C, K, K, h)
+        a_inv = jnp.linalg.solve(k_eff, jnp.eye(n, dtype=M.dtype))
+        rhs = jnp.concatenate([from_u, from_v], axis=1)
         return ConstantPropagator(a_inv, a_inv @ rhs)
 
 
@@ -109,6 +123,7 @@ class Newmark(_AverageAcceleration):
     For a linear system its stationary covariance equals the continuous one exactly, for any step."""
 
     name: ClassVar[str] = "trapezoidal"
+    has_velocity_noise: ClassVar[bool] = False
 
     def noise_dimension(self, system: System) -> int:
         return system.n_noise
@@ -382,7 +397,7 @@ def sample_step(
         force = state.force
         u1 = u_lin
     v1 = velocity_update(state.u, state.v, u1, h)
-    if isinstance(integrator, NewmarkBridge) and draws.shape[1]:
+    if integrator.has_velocity_noise and draws.shape[1]:
         v1 = v1 + draws @ v_noise.T
     return SampleState(u1, v1, force), ok
 

@@ -119,7 +119,7 @@ class TimeAverage(NamedTuple):
     mean_se: np.ndarray  # (k,) its standard error
     std: np.ndarray  # (k,) time average of the sample standard deviation
     std_se: np.ndarray  # (k,) its standard error
-    n_times: int  # saved times in the window
+    n_times: int  # saved times averaged (the window's, trimmed to whole batches)
 
 
 def _gaussian_gap_probability(mean, std, clearance):
@@ -128,8 +128,10 @@ def _gaussian_gap_probability(mean, std, clearance):
 
     positive = std > 0.0
     safe = jnp.where(positive, std, 1.0)
-    inside = (jnp.abs(mean) < clearance).astype(mean.dtype)
-    prob = ndtr((clearance - mean) / safe) - ndtr((-clearance - mean) / safe)
+    # symmetric in the mean: with |mean| both terms are small far from the gap (no cancellation of two ~1s)
+    distance = jnp.abs(mean)
+    inside = (distance < clearance).astype(mean.dtype)
+    prob = ndtr((clearance - distance) / safe) - ndtr((-clearance - distance) / safe)
     return jnp.where(positive, prob, inside)
 
 
@@ -205,20 +207,20 @@ class MonteCarloResult(_Labelled):
                 f"the window `t_start`..`t_end` must lie in the run, [{times[0]:g}, {times[-1]:g}] s; "
                 f"got [{lo:g}, {hi:g}]"
             )
-        window = (times >= lo) & (times <= hi)
-        count = int(window.sum())
+        window = np.flatnonzero((times >= lo) & (times <= hi))
+        count = window.size
         if count < 2 * n_batches:
             raise ValueError(
                 f"the window holds {count} saved times: at least 2 per batch ({2 * n_batches}) are "
                 "needed; widen it, save more often (`save_every`), or lower `n_batches`"
             )
+        window = window[: (count // n_batches) * n_batches]  # whole batches from the window's start, for both
         out = []
         for name in fields[what]:
             series = np.asarray(getattr(self, name))[window]
-            usable = (count // n_batches) * n_batches  # whole batches, from the window's start
-            batches = series[:usable].reshape(n_batches, -1, series.shape[1]).mean(axis=1)
+            batches = series.reshape(n_batches, -1, series.shape[1]).mean(axis=1)
             out += [series.mean(axis=0), batches.std(axis=0, ddof=1) / np.sqrt(n_batches)]
-        return TimeAverage(out[0], out[1], out[2], out[3], count)
+        return TimeAverage(out[0], out[1], out[2], out[3], window.size)
 
 
 class Trajectory(_Labelled):

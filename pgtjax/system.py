@@ -120,9 +120,9 @@ class Contacts(eqx.Module):
         if clearance is None:
             raise ValueError("Contacts: `clearance` (half-backlash b >= 0 per contact, m) is required")
         inputs = stiffness if inputs is None else inputs
-        if isinstance(inputs, list | tuple) and not hasattr(
-            inputs, "_fields"
-        ):  # a plain sequence is one array
+        # a plain list or tuple of numbers is one array; of arrays, a pytree of inputs
+        plain = isinstance(inputs, list | tuple) and not hasattr(inputs, "_fields")
+        if plain and all(np.ndim(x) == 0 for x in inputs):
             inputs = jnp.asarray(inputs, dtype=jnp.float64)
         self.direction = direction if callable(direction) else jnp.asarray(direction, dtype=jnp.float64)
         self.inputs = (

@@ -318,7 +318,7 @@ def test_gradient_of_static_equilibrium_matches_central_differences():
         load=[1.0],
         contacts=pg.Contacts(direction=[[1.0]], stiffness=[0.0], clearance=[0.01]),
     )
-    with pytest.raises(RuntimeError, match="static equilibrium"):
+    with pytest.raises(pg.SolverError, match=r"static_equilibrium: Newton did not reach .*at t = 0 s: nan"):
         pg.static_equilibrium(free)
 
 
@@ -330,3 +330,89 @@ def test_bench_modes_are_those_of_its_mean_mesh_stiffness():
     linear = pg.modal_analysis(bb.linear_system(motor=True)).frequencies_hz
     np.testing.assert_allclose(np.asarray(hertz), np.asarray(linear), rtol=1e-12)
     assert float(hertz[0]) > 10.0
+
+
+class ScaledCubic(CubicHardening):
+    """A law with a plain Python field next to its arrays (not differentiable, must not break gradients)."""
+
+    gain: float = 1.0
+
+    def force(self, delta, k, b):
+        return self.gain * super().force(delta, k, b)
+
+
+def test_law_with_a_clearance_converges_in_sl_and_non_array_fields_do_not_break_gradients():
+    """The default E[f'] (Stein's form E[(x - mu) f] / sigma^2) is continuous across the flank edge, so SL's
+    Newton converges for a law with a clearance (quadrature of the jumping f' made it stall)."""
+
+    def objective(k3):
+        law = ScaledCubic(jnp.atleast_1d(k3))
+        contacts = pg.Contacts(direction=[[1.0]], inputs=jnp.array([K_MESH]), clearance=[0.01], law=law)
+        system = pg.System(
+            mass=[[M]],
+            stiffness=[[0.0]],
+            damping=[[C]],
+            load=[1.0],
+            noise_input=[[1.0]],
+            spectral_density=S0,
+            contacts=contacts,
+        )
+        sl = pg.solve_moments(system, dt=0.01, n_steps=40, save_every=20, criterion="force")
+        assert bool(jnp.all(sl.converged)) if not isinstance(sl.converged, jax.core.Tracer) else True
+        return sl.std_u[-1, 0]
+
+    k3 = jnp.array(K3)
+    grad = jax.grad(objective)(k3)
+    h = 1e-4 * K3
+    fd = (objective(k3 + h) - objective(k3 - h)) / (2 * h)
+    np.testing.assert_allclose(float(grad), float(fd), rtol=1e-6)
+
+
+def test_static_equilibrium_gradient_through_a_closed_over_time_function():
+    """A plain function of time that closes over the differentiated value (not an array field)."""
+
+    def objective(p):
+        system = pg.System(
+            mass=np.eye(2),
+            stiffness=jnp.array([[100.0, -20.0], [-20.0, 50.0]]),
+            load=lambda t: jnp.array([p, -0.5]),
+            contacts=pg.Contacts(direction=[[1.0], [-1.0]], stiffness=[300.0], clearance=[0.01]),
+        )
+        return pg.static_equilibrium(system)[0]
+
+    p = jnp.array(3.0)
+    fd = (objective(p + 1e-4) - objective(p - 1e-4)) / 2e-4
+    assert abs(float(fd)) > 1e-3
+    np.testing.assert_allclose(float(jax.grad(objective)(p)), float(fd), rtol=1e-6)
+
+
+def test_custom_integrator_and_criterion_are_honoured():
+    class DampedNewmark(pg.Newmark):  # a user's variant: twice the damping in the step's algebra
+        name = "damped"
+
+        def effective_matrices(self, mass, damping, stiffness0, stiffness1, h):
+            return super().effective_matrices(mass, 2.0 * damping, stiffness0, stiffness1, h)
+
+    system = _duffing_system(load=1.0)
+    kw = dict(n_samples=50, key=jax.random.key(0), dt=0.005, n_steps=20, progress=False)
+    builtin = pg.monte_carlo(system, **kw)
+    assert builtin.propagation == "eigen"
+    mc = pg.monte_carlo(system, integrator=DampedNewmark(), **kw)
+    assert mc.propagation == "physical"  # the eigenbasis is the built-in map's, not this one's
+    assert float(mc.std_v[-1, 0]) < 0.99 * float(builtin.std_v[-1, 0])  # same draws, more damping
+    with pytest.raises(ValueError, match="custom integrator"):
+        pg.monte_carlo(system, integrator=DampedNewmark(), propagation="eigen", **kw)
+
+    class HalfEnergy(pg.EnergyCriterion):  # a new criterion chooses its formula by its potential reference
+        name = "half_energy"
+
+        def coefficients(self, mean_force, mean_stiffness, excess_potential):
+            return super().coefficients(mean_force, mean_stiffness, 0.5 * excess_potential)
+
+    law, inputs, b, scale = LAWS["backlash"]
+    mu, sigma = jnp.array([0.4, -1.2]) * scale, jnp.array([1.5, 0.8]) * scale
+    energy = law.linearize(mu, sigma, inputs, b, "energy")
+    half = law.linearize(mu, sigma, inputs, b, HalfEnergy())
+    force = law.linearize(mu, sigma, inputs, b, "force")
+    # k_e = 2/3 (E f' + X) and 2/3 (E f' + X / 2): their difference is X / 3 = (energy - 2/3 force) / 2
+    np.testing.assert_allclose(energy.k_e - half.k_e, 0.5 * (energy.k_e - 2.0 / 3.0 * force.k_e), rtol=1e-12)

@@ -51,7 +51,7 @@ def test_time_average_with_batch_means_covers_the_exact_stationary_moments():
     system = _oscillator()
     mc = pg.monte_carlo(system, n_samples=500, key=jax.random.key(11), progress=False, **KW)
     avg = mc.time_average("u", t_start=10.0, n_batches=10)  # the transient decays as exp(-c t / 2m)
-    assert avg.n_times == 151 and avg.std.dtype == np.float64
+    assert avg.n_times == 150 and avg.std.dtype == np.float64  # 151 saved times, trimmed to 10 x 15
     sigma = np.sqrt(np.pi * S0 / (C * K))
     assert abs(float(avg.mean[0])) < 4.0 * float(avg.mean_se[0])
     assert abs(float(avg.std[0]) - sigma) < 4.0 * float(avg.std_se[0])
@@ -85,3 +85,17 @@ def test_time_average_bad_input(kwargs, match):
     )
     with pytest.raises(ValueError, match=match):
         mc.time_average(**kwargs)
+
+
+def test_gap_probability_far_from_the_gap_keeps_its_digits():
+    from scipy.stats import norm
+
+    result_like = pg.solve_moments(_oscillator(), dt=0.01, n_steps=2)
+    mean = jnp.array([[12.0 * B], [-12.0 * B]])
+    std = jnp.full((2, 1), B)
+    from pgtjax.results import _gaussian_gap_probability
+
+    p = _gaussian_gap_probability(mean, std, jnp.array([[B]]))
+    exact = norm.sf(11.0) - norm.sf(13.0)  # P(-b < x < b) for x ~ N(12 b, b^2)
+    np.testing.assert_allclose(np.asarray(p)[:, 0], exact, rtol=1e-10)
+    assert result_like.contact_loss_probability(_oscillator()).shape == (3, 1)

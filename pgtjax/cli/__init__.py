@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from .._failure import SolverError
 from . import back_to_back, gear_pair, planetary, ring
 
 __all__ = ["build_parser", "main"]
@@ -43,3 +44,6 @@ def main(argv=None) -> int:
     except (ValueError, argparse.ArgumentTypeError) as err:  # bad input: a clear message, no traceback
         print(f"pgtjax: error: {err}", file=sys.stderr)
         return 2
+    except SolverError as err:  # a numerical failure, with when and where
+        print(f"pgtjax: numerical failure: {err}", file=sys.stderr)
+        return 1
