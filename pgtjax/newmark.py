@@ -238,6 +238,15 @@ def _batched(inputs):
     return jax.tree.map(lambda x: x[None, :], inputs)
 
 
+def _residual_scale(delta_lin, b):
+    """Per-contact scale of the contact solve's residual (..., nc): ``|delta_lin| + b``, floored at 1e-4 of
+    the sample's largest. Without the floor a contact whose deflection is rounding-level (a symmetric mode,
+    say) can never reach a relative residual of 1e-12, so the solve ran to ``max_iter`` and was flagged
+    unconverged; contacts above the floor keep their own relative criterion."""
+    own = jnp.abs(delta_lin) + b
+    return jnp.maximum(own, 1e-4 * jnp.max(own, axis=-1, keepdims=True)) + 1e-300
+
+
 def solve_contacts(delta_lin, coupling, k, b, law, *, tol=1e-12, max_iter=50):
     """Newton solve of ``delta + S f(delta) = delta_lin`` in contact space (one sample).
 
@@ -247,9 +256,7 @@ def solve_contacts(delta_lin, coupling, k, b, law, *, tol=1e-12, max_iter=50):
     """
     nc = delta_lin.shape[0]
     eye = jnp.eye(nc, dtype=delta_lin.dtype)
-    # relative to the sample's largest deflection, not contact by contact: a contact whose deflection is
-    # rounding-level (a symmetric mode, say) cannot reach a relative residual of 1e-12 on its own
-    scale = jnp.max(jnp.abs(delta_lin) + b) + 1e-300
+    scale = _residual_scale(delta_lin, b)
 
     def residual(d):
         return d + coupling @ law.force(d, k, b) - delta_lin
@@ -293,7 +300,7 @@ def solve_contacts_batch(delta_lin, coupling, k, b, law, *, tol=1e-12, max_iter=
     eye = jnp.eye(nc, dtype=delta_lin.dtype)
     k_on = law.closed_stiffness(k, b)  # an on/off law's stiffness is 0 or this
     inverses = jnp.linalg.inv(eye[None] + coupling[None] * (patterns * k_on[None, :])[:, None, :])
-    scale = jnp.max(jnp.abs(delta_lin) + b[None, :], axis=1, keepdims=True) + 1e-300  # as in solve_contacts
+    scale = _residual_scale(delta_lin, b[None, :])
     k_rows = _batched(k)
 
     def residual(d):
