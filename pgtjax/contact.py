@@ -18,7 +18,7 @@ Criteria (the ``criterion`` argument):
     when ``sigma << b``.
 ``"energy"`` (default of the energy family)
     Minimum mean-square error of the potential energy of the *fluctuating* part (thesis ch. 4, Eqs. 4.31-4.43,
-    as corrected in shared/seeds/ERRATA.md): minimizing
+    as corrected here): minimizing
     ``E[(P(mu + y) - P(mu) - k_e y^2 / 2 - f_0 y)^2]`` over ``(k_e, f_0)`` with ``y ~ N(0, sigma^2)`` gives, by
     Stein's lemma, ``f_0 = E[f]`` (Eq. 4.49) and
     ``k_e = 2/3 (E[f'] + (E[P] - P(mu)) / sigma^2)``.

@@ -1,8 +1,8 @@
 """Back-to-back planetary test bench: 12-DOF torsional model with geometry-based nonlinear mesh stiffness.
 
 Source: Hammami et al., *Dynamic behavior of non-linear planetary gear model in non-stationary conditions*
-(``shared/seeds/002_b0e76710ce656f06.txt``; "paper" below), section 4 (Eqs. 14-33), Tables 1 and 3, read with
-``shared/seeds/ERRATA.md``. The mesh stiffness (tooth bending, fillet foundation, Harsha/Hertz contact in
+("paper" below), section 4 (Eqs. 14-33), Tables 1 and 3, with the corrections of the printed equations
+stated where they are used ("ERRATA" below). The mesh stiffness (tooth bending, fillet foundation, Harsha/Hertz contact in
 series, Eqs. 1-13) comes from :mod:`pgtjax.models.mesh_stiffness`; this module puts it on the twelve meshes of
 the bench and writes the equations of motion in the form every pgtjax solver takes (:class:`pgtjax.System`).
 

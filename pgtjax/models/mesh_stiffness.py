@@ -1,8 +1,8 @@
 """Mesh stiffness of a spur gear pair computed from its geometry.
 
 Source: Hammami et al., *Dynamic behavior of non-linear planetary gear model in non-stationary
-conditions* (``shared/seeds/002_b0e76710ce656f06.txt``), section 3 and Table 1, Eqs. 1-13, read
-together with ``shared/seeds/ERRATA.md``. Mesh phasing follows Parker & Lin (2004), *Mesh phasing
+conditions*, section 3 and Table 1, Eqs. 1-13, with the corrections of the printed equations stated where
+they are used ("ERRATA" below). Mesh phasing follows Parker & Lin (2004), *Mesh phasing
 relationships in planetary and epicyclic gears*, J. Mech. Des. 126:365-370.
 
 Model, per tooth pair in contact (all quantities SI: m, N, Pa, rad, unless stated):
