@@ -1,5 +1,5 @@
 """Benchmark: 1 s of run-up of the back-to-back bench at dt = 1e-4 s (10,000 Newmark-Newton steps, 12 DOF,
-12 Hertzian mesh contacts), as in the paper (seeds/002, section 4: dt = 1e-4 s).
+12 Hertzian mesh contacts), as in the paper (Hammami et al., section 4: dt = 1e-4 s).
 
 Correctness is checked before timing (every contact solve converged, finite states, the STFT ridge of a
 transmission error within 2 % of Z_r f_c). Compilation is timed separately from the run (first call minus the
@@ -38,7 +38,7 @@ def main(argv=None) -> int:
 
     params = bb.default_params(ramp_start=0.0, ramp_duration=T_END)
     t0 = time.perf_counter()
-    model = bb.build(params)
+    model = bb.build_model(params)
     u0, v0 = bb.initial_state(model, 0.5 * DT)
     jax.block_until_ready(u0)
     build_s = time.perf_counter() - t0

@@ -26,7 +26,7 @@ def numpy_monte_carlo(system_params, n_samples, n_steps, dt, rng, noise=True):
     """Per-sample, per-step loop in NumPy: the stochastic Newmark step with the implicit backlash force
     (Newton on the single contact), written as a direct transcription of the scheme, no vectorization."""
     p = system_params
-    sys = gp.gear_pair(p)
+    sys = gp.build(p)
     M = np.asarray(sys.mass)
     C = np.asarray(sys.damping)
     Ks = np.asarray(sys.stiffness)
@@ -84,7 +84,7 @@ def main():
     ap.add_argument("--repeats", type=int, default=3)
     args = ap.parse_args()
     params = gp.default_params()
-    system = gp.gear_pair(params)
+    system = gp.build(params)
     dt, n = args.dt, args.steps
 
     # --- correctness first

@@ -49,7 +49,7 @@ def main():
     args = ap.parse_args()
     p = pm.default_params()
     lay = pm.layout(p)
-    system = pm.planetary(p)
+    system = pm.build(p)
     u_eq = pg.static_equilibrium(system)
     p0 = pm.wind_filter_stationary_covariance(p, lay)
     dt = 0.0027
@@ -93,7 +93,7 @@ def main():
             )
             q = eqx.tree_at(lambda z: z.ring, p, ring)
             r = pg.solve_moments(
-                pm.planetary(q),
+                pm.build(q),
                 dt=dt,
                 n_steps=n_period,
                 save_every=save_every,

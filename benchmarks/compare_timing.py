@@ -270,7 +270,8 @@ def work_back_to_back(sz: dict, repeats: int) -> list:
     from pgtjax.models import back_to_back as bb
 
     dt = 1e-4
-    model = bb.build(bb.default_params(ramp_start=0.0, ramp_duration=1.0))
+    build_model = getattr(bb, "build_model", bb.build)  # the old tree named it build
+    model = build_model(bb.default_params(ramp_start=0.0, ramp_duration=1.0))
     u0, v0 = bb.initial_state(model, 0.5 * dt)
     n = int(round(sz["t_end"] / dt))
 

@@ -1,4 +1,4 @@
-"""Acceptance tests of the back-to-back bench (paper seeds/002) against independent computations."""
+"""Acceptance tests of the back-to-back bench (bench paper, Hammami et al.) against independent computations."""
 
 import argparse
 import dataclasses
@@ -113,7 +113,7 @@ def test_mesh_phase_is_the_integral_of_the_mesh_frequency(params):
 
 @pytest.mark.parametrize("spin_rpm, tolerance", [(0.0, 1e-9), (1500.0, 1e-6)])
 def test_integrator_conserves_energy_without_damping_and_excitation(params, spin_rpm, tolerance):
-    model = bb.build(params, contacts="linear", motor=False, damping=False, loads=False)
+    model = bb.build_model(params, contacts="linear", motor=False, damping=False, loads=False)
     s = model.system
     M = np.asarray(s.mass)
     K = (
@@ -149,7 +149,7 @@ def test_rigid_rotation_leaves_meshes_and_shafts_undeformed(params):
 
 
 def test_static_state_shares_the_circulating_torque(params):
-    model = bb.build(params.replace(sun_torque=150.0))
+    model = bb.build_model(params.replace(sun_torque=150.0))
     u = bb.static_equilibrium(model)
     g = model.directions
     f = np.asarray(model.law.force(g.T @ u, model.phase(0.0), model.system.contact_clearance()))

@@ -325,7 +325,7 @@ def test_gradient_of_static_equilibrium_matches_central_differences():
 def test_bench_modes_are_those_of_its_mean_mesh_stiffness():
     """The bench's Hertzian law takes the mesh phase as its input; modal analysis uses the law's closed
     stiffness (the mean tangent mesh stiffness), not the phase (which once gave modes near 0.1 Hz)."""
-    model = bb.build()
+    model = bb.build_model()
     hertz = pg.modal_analysis(model.system).frequencies_hz
     linear = pg.modal_analysis(bb.linear_system(motor=True)).frequencies_hz
     np.testing.assert_allclose(np.asarray(hertz), np.asarray(linear), rtol=1e-12)

@@ -18,7 +18,7 @@ P = gp.default_params()
 
 
 def test_matrices_and_contact_direction_match_equations():
-    s = gp.gear_pair(P)
+    s = gp.build(P)
     r1, r2, i1, i2 = 0.2156, 0.4004, 3.2, 3.2
     m_c = i1 * i2 / (i2 * r1**2 + i1 * r2**2)  # Eq. 4.8
     np.testing.assert_allclose(s.mass, np.diag([181.6, 104.0, m_c]), rtol=1e-14)
@@ -31,7 +31,7 @@ def test_matrices_and_contact_direction_match_equations():
     f = float(pg.Backlash().force(delta, 16.9e9, 20e-6))
     np.testing.assert_allclose(g[:, 0] * f, [f, -f, f])
     # load on z: T_in / r1 when the torques balance (Eq. 4.7)
-    balanced = gp.gear_pair(P.replace(torque_out=4e4 * r2 / r1))
+    balanced = gp.build(P.replace(torque_out=4e4 * r2 / r1))
     np.testing.assert_allclose(float(balanced.load[2]), 4e4 / r1, rtol=1e-12)
     np.testing.assert_array_equal(np.asarray(s.noise_input)[:, 0], [0.0, 0.0, 100.0])  # Eq. 4.18
     # mesh stiffness: Fourier series of Eq. 4.11 at omega = a1 * speed
@@ -47,11 +47,11 @@ def test_matrices_and_contact_direction_match_equations():
 
 def test_bad_parameters():
     with pytest.raises(ValueError, match="half_backlash"):
-        gp.gear_pair(P.replace(half_backlash=-1e-6))
+        gp.build(P.replace(half_backlash=-1e-6))
     with pytest.raises(ValueError, match="mass_1"):
-        gp.gear_pair(P.replace(mass_1=0.0))
+        gp.build(P.replace(mass_1=0.0))
     with pytest.raises(ValueError, match="mesh_sin"):
-        gp.gear_pair(P.replace(mesh_sin=jnp.array([20e9])))
+        gp.build(P.replace(mesh_sin=jnp.array([20e9])))
     with pytest.raises(ValueError, match="unknown"):
         P.replace(rim=1.0)
 

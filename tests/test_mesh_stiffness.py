@@ -10,15 +10,17 @@ import pytest
 from scipy import integrate
 
 from pgtjax.models import mesh_stiffness as ms
+from pgtjax.params import path as params_path
+from pgtjax.params import read_toml
 
-# Numbers reported by the paper (seeds/002, section 5): mean Hertzian stiffness during the run-up.
+# Numbers reported by the paper (Hammami et al., section 5): mean Hertzian stiffness during the run-up.
 PAPER_HS_SUN = (1.13e9, 1.234e9)
 PAPER_HS_RING = (2.102e9, 2.243e9)
 
 
 @pytest.fixture(scope="module")
 def bench():
-    return ms.back_to_back_meshes()
+    return ms.back_to_back_meshes(read_toml(params_path("back_to_back.toml")))
 
 
 @pytest.fixture(scope="module")

@@ -34,7 +34,7 @@ def small_params(**over):
 def test_mass_spd_stiffness_symmetric_apart_from_wind_coupling():
     p = pm.default_params()
     lay = pm.layout(p)
-    s = pm.planetary(p)
+    s = pm.build(p)
     m = np.asarray(s.mass)
     assert (
         m.shape == (70, 70) and lay.n_dof == 70
@@ -165,7 +165,7 @@ def lin_parker_params(n_planets):
 def test_rigid_ring_option_reproduces_lin_parker_table(n_planets):
     p = lin_parker_params(n_planets)
     lay = pm.layout(p)
-    s = pm.planetary(p)
+    s = pm.build(p)
     modes = pg.modal_analysis(s)
     kinds = [pm.mode_type(p, lay, s.mass, modes.shapes[:, i]) for i in range(lay.n_dof)]
     freqs = np.asarray(modes.frequencies_hz)
@@ -208,9 +208,9 @@ def test_elastic_ring_model_tends_to_the_rigid_ring_model():
     errors = []
     for scale in (1.0, 1e2, 1e4):
         p = small_params(ring={"youngs_modulus": 210e9 * scale}, n_elements=12)
-        elastic = pm.planetary(p)
+        elastic = pm.build(p)
         rigid_p = rigid_equivalent(p)
-        rigid = pm.planetary(rigid_p)
+        rigid = pm.build(rigid_p)
         f_rigid = np.sort(np.asarray(pg.modal_analysis(rigid).frequencies_hz))[:12]
         f_el = np.sort(np.asarray(pg.modal_analysis(elastic).frequencies_hz))[:12]
         errors.append(np.max(np.abs(f_el - f_rigid) / np.maximum(f_rigid, 1.0)))
@@ -223,7 +223,7 @@ def test_never_losing_contact_mc_within_three_standard_errors_of_recursion():
     SL is exact and MC of the nonlinear system must agree with the recursion within sampling error."""
     p = small_params()
     lay = pm.layout(p)
-    s = pm.planetary(p)
+    s = pm.build(p)
     u_eq = pg.static_equilibrium(s)
     # equilibrium: K u + G f = F holds (independent check of the Newton solve)
     g, k = s.contact_direction(0.0), s.contact_stiffness(0.0)
@@ -266,7 +266,7 @@ def test_gradients_wrt_rim_thickness_and_support_stiffness_match_finite_differen
         )
         p = eqx.tree_at(lambda q: q.ring, base, ring)
         r = pg.solve_moments(
-            pm.planetary(p),
+            pm.build(p),
             dt=0.0027,
             n_steps=30,
             save_every=30,
@@ -305,7 +305,7 @@ def test_gradient_independent_of_save_interval_checkpointing_and_mode():
         p = eqx.tree_at(lambda q: q.ring, base, ring)
         p0 = pm.wind_filter_stationary_covariance(p, lay)
         r = pg.solve_moments(
-            pm.planetary(p),
+            pm.build(p),
             dt=0.0027,
             n_steps=6,
             save_every=save_every,

@@ -1,4 +1,4 @@
-"""CLI of the back-to-back bench study (paper seeds/002): ``pgtjax back-to-back`` and
+"""CLI of the back-to-back bench study (bench paper, Hammami et al.): ``pgtjax back-to-back`` and
 ``pgtjax back-to-back-modal``.
 
 ``register(subparsers)`` adds both subcommands to the ``pgtjax`` parser (called from :mod:`pgtjax.cli`); the
@@ -93,7 +93,7 @@ def register(subparsers) -> None:
     """Add ``back-to-back`` and ``back-to-back-modal`` to an ``argparse`` subparsers object."""
     run = subparsers.add_parser(
         "back-to-back",
-        help="paper seeds/002: back-to-back planetary bench, stationary regime and run-up (Newmark-Newton, "
+        help="bench paper, Hammami et al.: back-to-back planetary bench, stationary regime and run-up (Newmark-Newton, "
         "Hertzian mesh stiffness, transmission error, STFT)",
         description="Simulate the back-to-back planetary bench in a stationary regime and in a run-up; write "
         "labelled trajectories (.npz), mesh histories (Hertzian and mesh stiffness, transmission "

@@ -282,7 +282,7 @@ def load_params(path: str | Path | None = None, **overrides) -> BackToBackParams
     path = _params.path("back_to_back.toml") if path is None else Path(path)
     data = _params.read_toml(path)
     try:
-        meshes = ms.back_to_back_meshes(path)
+        meshes = ms.back_to_back_meshes(data)
         g, b, d, run = data["gears"], data["bench"], data["damping"], data["run_up"]
         fields = dict(
             sun_planet=meshes.sun_planet,
@@ -770,7 +770,13 @@ class BenchModel(NamedTuple):
     directions: Array  # (12, 12)
 
 
-def build(
+def build(params: BackToBackParams | None = None, **options) -> System:
+    """The bench's :class:`pgtjax.System` (Eq. 14); ``None``: the embedded defaults. ``options`` as
+    :func:`build_model`, which also returns the operating profile, mesh law and other derived data."""
+    return build_model(params, **options).system
+
+
+def build_model(
     params: BackToBackParams | None = None,
     *,
     contacts: str = "hertz",
@@ -820,7 +826,7 @@ def build(
 
 def linear_system(params: BackToBackParams | None = None, *, motor: bool = False) -> System:
     """Linear bench for modal analysis: meshes as linear springs of their mean stiffness, no damping/loads."""
-    return build(params, contacts="linear", motor=motor, damping=False, loads=False).system
+    return build(params, contacts="linear", motor=motor, damping=False, loads=False)
 
 
 # ------------------------------------------------------------------------------------------ static solution

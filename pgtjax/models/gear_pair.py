@@ -61,6 +61,9 @@ class GearPairParams(eqx.Module):
     teeth_2: int = eqx.field(static=True)
     rayleigh: tuple | None = eqx.field(static=True, default=None)  # (alpha 1/s, beta s) overrides the fit
 
+    def __check_init__(self):
+        validate(self)
+
     @property
     def mesh_frequency(self):
         """Mesh frequency (rad/s): teeth of gear 1 times its speed."""
@@ -81,6 +84,7 @@ class GearPairParams(eqx.Module):
             if name not in ("teeth_1", "teeth_2", "rayleigh"):
                 value = jnp.asarray(value, dtype=jnp.float64)
             new = eqx.tree_at(lambda p: getattr(p, name), new, value, is_leaf=lambda x: x is None)
+        validate(new)  # tree_at bypasses __check_init__
         return new
 
 
@@ -114,6 +118,8 @@ def validate(p: GearPairParams) -> None:
                 "`mesh_sin`/`mesh_cos`: the harmonic amplitudes must sum to less than "
                 f"`mesh_stiffness` so that k_h(t) > 0; got {amplitude} >= {float(p.mesh_stiffness)}"
             )
+    if np.shape(p.mesh_sin) != np.shape(p.mesh_cos):
+        raise ValueError("`sin_coefficients` and `cos_coefficients` must have the same length")
     if p.teeth_1 < 1 or p.teeth_2 < 1:
         raise ValueError("`teeth_1` and `teeth_2` must be integers >= 1")
 
@@ -127,8 +133,11 @@ def default_params() -> GearPairParams:
     return load_params(_params.path("gear_pair.toml"))
 
 
-def load_params(source) -> GearPairParams:
-    """Read a gear-pair parameter file (TOML, same layout as the embedded ``gear_pair.toml``) or a dict."""
+def load_params(source=None) -> GearPairParams:
+    """Read a gear-pair parameter file (TOML, same layout as the embedded ``gear_pair.toml``) or a dict;
+    ``None``: the embedded file. Values are checked on construction (``ValueError`` naming the entry)."""
+    if source is None:
+        source = _params.path("gear_pair.toml")
     if isinstance(source, (str, Path)):
         data = _params.read_toml(source)
     else:
@@ -162,9 +171,6 @@ def load_params(source) -> GearPairParams:
         )
     except KeyError as err:
         raise ValueError(f"gear-pair parameter file is missing the entry {err}") from None
-    if p.mesh_sin.shape != p.mesh_cos.shape:
-        raise ValueError("`sin_coefficients` and `cos_coefficients` must have the same length")
-    validate(p)
     return p
 
 
@@ -215,8 +221,9 @@ def mesh_stiffness_function(p: GearPairParams) -> FourierSeries:
     )
 
 
-def gear_pair(p: GearPairParams | None = None) -> System:
-    """Build the :class:`System` of Eq. 4.12 from parameters (default: :func:`default_params`)."""
+def build(p: GearPairParams | None = None) -> System:
+    """Build the :class:`System` of Eq. 4.12 from parameters (default: :func:`default_params`); validated
+    here too, since ``eqx.tree_at`` bypasses ``__check_init__``."""
     p = default_params() if p is None else p
     validate(p)
     mass = mass_matrix(p)
@@ -240,6 +247,9 @@ def gear_pair(p: GearPairParams | None = None) -> System:
         dof_names=DOF_NAMES,
         dof_units=("m", "m", "m"),
     )
+
+
+gear_pair = build  # the builder's former name, kept for existing scripts
 
 
 def static_deflection(p: GearPairParams):

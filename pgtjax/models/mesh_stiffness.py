@@ -58,8 +58,8 @@ Assumptions (the paper is silent):
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from functools import partial
-from pathlib import Path
 from typing import NamedTuple
 
 import equinox as eqx
@@ -67,7 +67,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import params as _params
 from .._validate import check_range
 
 Array = jax.Array
@@ -951,8 +950,6 @@ def mesh_load_from_sun_torque(sun_mesh: SpurMesh, sun_torque, n_planets: int) ->
 # Default parameter set (paper Table 1)
 # --------------------------------------------------------------------------------------------
 
-_PARAMS_FILE = _params.path("back_to_back.toml")
-
 
 class BackToBackMeshes(NamedTuple):
     """Meshes and operating data of one stage of the back-to-back bench (paper Table 1)."""
@@ -965,12 +962,17 @@ class BackToBackMeshes(NamedTuple):
     mesh_load: Array  # nominal normal load per mesh [N]
 
 
-def back_to_back_meshes(path: str | Path | None = None, **overrides) -> BackToBackMeshes:
-    """Default sun-planet and ring-planet meshes from ``pgtjax/params/back_to_back.toml``.
+def back_to_back_meshes(data: Mapping, **overrides) -> BackToBackMeshes:
+    """Sun-planet and ring-planet meshes of the bench from its parameter tables (the dict
+    :func:`pgtjax.params.read_toml` returns for a file laid out as ``back_to_back.toml``; the bench model's
+    ``load_params`` is the one place that reads that file).
 
     ``overrides`` replace entries of the [mesh] table (e.g. ``face_width=0.025``).
     """
-    data = _params.read_toml(path or _PARAMS_FILE)
+    if not isinstance(data, Mapping):
+        raise ValueError(
+            f"`data` must be the parameter tables as a dict (pgtjax.params.read_toml(path)), got {data!r}"
+        )
     g = data["gears"]
     mesh_kw = dict(data["mesh"])
     mesh_kw.update(overrides)

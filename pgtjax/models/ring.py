@@ -78,7 +78,7 @@ class RingParams(eqx.Module):
 
     Array leaves (float64 scalars; the support stiffnesses may also be one value per support) are
     differentiable; ``n_elements``, ``n_teeth``, ``support_nodes`` and ``rotary_inertia`` are static.
-    Values are checked in ``__init__`` (``ValueError`` naming the parameter and its range); traced
+    Values are checked in ``__check_init__`` (``ValueError`` naming the parameter and its range); traced
     values (a RingParams built inside ``jit``/``grad``) cannot be checked and are passed through.
 
     Attributes:
@@ -144,48 +144,56 @@ class RingParams(eqx.Module):
                 f"`support_nodes` must be distinct node indices in [0, {n_elements - 1}], "
                 f"got {support_nodes!r}"
             )
-        check_range("radius", radius, lo=0.0, lo_closed=False, unit="m")
-        check_range("thickness", thickness, lo=0.0, lo_closed=False, unit="m")
-        check_range("face_width", face_width, lo=0.0, lo_closed=False, unit="m")
-        check_range("youngs_modulus", youngs_modulus, lo=0.0, lo_closed=False, unit="Pa")
-        check_range("density", density, lo=0.0, lo_closed=False, unit="kg/m^3")
-        check_range("tooth_mass", tooth_mass, lo=0.0, lo_closed=True, unit="kg")
-        check_range("tooth_inertia", tooth_inertia, lo=0.0, lo_closed=True, unit="kg m^2")
-        check_range("k_support_radial", k_support_radial, lo=0.0, lo_closed=True, unit="N/m")
-        check_range("k_support_tangential", k_support_tangential, lo=0.0, lo_closed=True, unit="N/m")
-        check_range("k_support_torsional", k_support_torsional, lo=0.0, lo_closed=True, unit="N m/rad")
-        try:
-            h, r = float(thickness), float(radius)
-        except (jax.errors.ConcretizationTypeError, jax.errors.TracerArrayConversionError, TypeError):
-            h = r = None
-        if h is not None and h >= 2.0 * r:
-            raise ValueError(f"`thickness` must be < 2 * radius = {2.0 * r:g} m, got {h}")
-        for name, val in (
-            ("k_support_radial", k_support_radial),
-            ("k_support_tangential", k_support_tangential),
-            ("k_support_torsional", k_support_torsional),
-        ):
-            shape = np.shape(val)
-            if shape not in ((), (len(nodes),)):
-                raise ValueError(
-                    f"`{name}` must be a scalar or have shape ({len(nodes)},) (one per support), got {shape}"
-                )
 
-        f = lambda x: jnp.asarray(x, dtype=jnp.float64)  # noqa: E731
-        self.radius = f(radius)
-        self.thickness = f(thickness)
-        self.face_width = f(face_width)
-        self.youngs_modulus = f(youngs_modulus)
-        self.density = f(density)
-        self.tooth_mass = f(tooth_mass)
-        self.tooth_inertia = f(tooth_inertia)
-        self.k_support_radial = f(k_support_radial)
-        self.k_support_tangential = f(k_support_tangential)
-        self.k_support_torsional = f(k_support_torsional)
+        def f(name, x):
+            try:
+                return jnp.asarray(x, dtype=jnp.float64)
+            except (TypeError, ValueError):
+                raise ValueError(f"`{name}` must be a number or an array of numbers, got {x!r}") from None
+
+        self.radius = f("radius", radius)
+        self.thickness = f("thickness", thickness)
+        self.face_width = f("face_width", face_width)
+        self.youngs_modulus = f("youngs_modulus", youngs_modulus)
+        self.density = f("density", density)
+        self.tooth_mass = f("tooth_mass", tooth_mass)
+        self.tooth_inertia = f("tooth_inertia", tooth_inertia)
+        self.k_support_radial = f("k_support_radial", k_support_radial)
+        self.k_support_tangential = f("k_support_tangential", k_support_tangential)
+        self.k_support_torsional = f("k_support_torsional", k_support_torsional)
         self.n_elements = int(n_elements)
         self.n_teeth = int(n_teeth)
         self.support_nodes = nodes
         self.rotary_inertia = bool(rotary_inertia)
+
+    def __check_init__(self):
+        # values (counts and node indices are converted and checked in __init__); traced values pass
+        check_range("radius", self.radius, lo=0.0, lo_closed=False, unit="m")
+        check_range("thickness", self.thickness, lo=0.0, lo_closed=False, unit="m")
+        check_range("face_width", self.face_width, lo=0.0, lo_closed=False, unit="m")
+        check_range("youngs_modulus", self.youngs_modulus, lo=0.0, lo_closed=False, unit="Pa")
+        check_range("density", self.density, lo=0.0, lo_closed=False, unit="kg/m^3")
+        check_range("tooth_mass", self.tooth_mass, lo=0.0, lo_closed=True, unit="kg")
+        check_range("tooth_inertia", self.tooth_inertia, lo=0.0, lo_closed=True, unit="kg m^2")
+        check_range("k_support_radial", self.k_support_radial, lo=0.0, lo_closed=True, unit="N/m")
+        check_range("k_support_tangential", self.k_support_tangential, lo=0.0, lo_closed=True, unit="N/m")
+        check_range("k_support_torsional", self.k_support_torsional, lo=0.0, lo_closed=True, unit="N m/rad")
+        if not any(isinstance(x, jax.core.Tracer) for x in (self.thickness, self.radius)):
+            h, r = float(self.thickness), float(self.radius)
+        else:
+            h = r = None
+        if h is not None and h >= 2.0 * r:
+            raise ValueError(f"`thickness` must be < 2 * radius = {2.0 * r:g} m, got {h}")
+        for name, val in (
+            ("k_support_radial", self.k_support_radial),
+            ("k_support_tangential", self.k_support_tangential),
+            ("k_support_torsional", self.k_support_torsional),
+        ):
+            shape = np.shape(val)
+            if shape not in ((), (len(self.support_nodes),)):
+                raise ValueError(
+                    f"`{name}` must be a scalar or have shape ({len(self.support_nodes)},) (one per support), got {shape}"
+                )
 
     # -- derived quantities -------------------------------------------------------------------------
     @property

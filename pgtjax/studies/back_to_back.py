@@ -1,4 +1,4 @@
-"""Paper study (seeds/002, section 5): the back-to-back bench in a stationary regime (A) and in a run-up (B).
+"""Paper study (Hammami et al., section 5): the back-to-back bench in a stationary regime (A) and in a run-up (B).
 
 For each regime the bench (:mod:`pgtjax.models.back_to_back`) is integrated by :func:`pgtjax.simulate`
 (average-acceleration Newmark with a Newton solve of the 12 mesh contacts per step; the paper's Eqs. 34-42 are
@@ -152,7 +152,7 @@ def run_regime(
     t0 = 0.5 * dt if t0 is None else t0
     n_steps = int(round(t_end / dt))
     n_steps = max(save_every * (n_steps // save_every), save_every)
-    model = bb.build(params)
+    model = bb.build_model(params)
     start = time.perf_counter()
     u0, v0 = bb.initial_state(model, t0)
     traj = simulate(
@@ -235,7 +235,7 @@ def run_up_end(params: bb.BackToBackParams) -> float:
 def format_header(params: bb.BackToBackParams, *, dt: float, t_end: float) -> str:
     """One line describing a :func:`run_study` call (the CLI's first line)."""
     return (
-        f"pgtjax back-to-back bench (paper seeds/002): 12 DOF, 12 Hertzian meshes, dt = {dt:g} s; "
+        f"pgtjax back-to-back bench (bench paper, Hammami et al.): 12 DOF, 12 Hertzian meshes, dt = {dt:g} s; "
         f"run-up {float(params.speed_start) / bb.RPM:.0f} -> {float(params.speed_end) / bb.RPM:.0f} rpm, "
         f"torque {float(params.sun_torque):g} -> {float(params.torque_end):g} N m, {t_end:g} s"
     )

@@ -69,7 +69,7 @@ def step_convergence(params=None, *, dts=(4e-5, 2e-5, 1e-5, 5e-6, 2.5e-6), t_end
 
     Returns a list of dicts (dt, omega_max dt, mean, std, relative errors)."""
     params = gp.default_params() if params is None else params
-    system = gp.gear_pair(params)
+    system = gp.build(params)
     w_max = float(modal_analysis(system).angular_frequencies[-1])
     rows = []
     for dt in dts:
@@ -125,7 +125,7 @@ def run_study(
     out = []
     for index, (name, t_in, t_out) in enumerate(regimes):
         p = params.replace(torque_in=t_in, torque_out=t_out)
-        system = gp.gear_pair(p)
+        system = gp.build(p)
         kw = dict(dt=dt, n_steps=n_steps, save_every=save_every)
         sl = {c: solve_moments(system, criterion=c, **kw) for c in criteria}
         mc = None
@@ -310,7 +310,7 @@ def modal_table(params=None) -> list[dict]:
     """Natural frequencies (Hz) and mode shapes of the gear pair, the mesh closed at its mean stiffness:
     ``[{mode, frequency_hz, shape: {dof: value}}]``."""
     params = gp.default_params() if params is None else params
-    modes = modal_analysis(gp.gear_pair(params))
+    modes = modal_analysis(gp.build(params))
     return [
         dict(
             mode=i + 1,

@@ -89,10 +89,10 @@ def contact_point_observables(p: pm.PlanetaryParams, planet: int = 0) -> Observa
     """Ring displacement (inward radial, tangential; m) at the moving contact point of a planet (Fig. 3.9)."""
     lay = pm.layout(p)
     psi = float(p.planet_angles()[planet])
-    inverse = ring_nodal_inverse(p.ring)  # formed once, not at every time step
+    inverse = ring_nodal_inverse(p.elastic_ring)  # formed once, not at every time step
 
     def matrix(t):
-        rows = ring_interpolation(p.ring, p.mesh.carrier_speed * t + psi, inverse)[:2]
+        rows = ring_interpolation(p.elastic_ring, p.mesh.carrier_speed * t + psi, inverse)[:2]
         return jnp.zeros((2, lay.n_dof)).at[:, lay.ring_start : lay.ring_start + lay.n_ring].set(rows)
 
     return Observables(
@@ -114,7 +114,7 @@ def _grid(p, dt, periods, n_saves, sl_refine):
 
 def _setup(p, dt, periods, n_saves, sl_refine=1, observables=True):
     """The system and the solver keywords shared by SL and MC, with the SL and MC save intervals."""
-    system = pm.planetary(p)
+    system = pm.build(p)
     lay = pm.layout(p)
     n_steps, mc_every, sl_every = _grid(p, dt, periods, n_saves, sl_refine)
     kw = dict(
@@ -198,10 +198,8 @@ def rim_thickness_variants(params=None, thicknesses=(0.087, 0.128, 0.168)) -> di
     p = pm.default_params() if params is None else params
     out = {}
     for h in thicknesses:
-        ring = eqx.tree_at(
-            lambda r: (r.thickness, r.radius), p.ring, (jnp.asarray(h), p.ring_pitch_radius + h / 2)
-        )
-        out[f"t_r = {h * 1e3:.0f} mm"] = eqx.tree_at(lambda q: q.ring, p, ring)
+        # the centre radius follows the thickness (PlanetaryParams.elastic_ring)
+        out[f"t_r = {h * 1e3:.0f} mm"] = eqx.tree_at(lambda q: q.ring.thickness, p, jnp.asarray(h))
     return out
 
 
@@ -222,7 +220,7 @@ def support_variants(params=None, counts=(3, 6, 9)) -> dict:
 def modal_table(params=None) -> list[dict]:
     """Natural frequencies (Hz) of the full model with the meshes closed at t = 0, and mode types."""
     p = pm.default_params() if params is None else params
-    system = pm.planetary(p)
+    system = pm.build(p)
     lay = pm.layout(p)
     modes = modal_analysis(system)
     return [
@@ -248,7 +246,7 @@ def sensitivities(
     p = pm.default_params() if params is None else params
     lay = pm.layout(p)
     index = lay.ring_start + 3 * node
-    system = pm.planetary(p)
+    system = pm.build(p)
     contact = system.contact_names().index(mesh) if mesh in system.contact_names() else None
     if contact is None:
         raise ValueError(f"`mesh` must be one of {', '.join(system.contact_names())}, got {mesh!r}")
@@ -256,14 +254,9 @@ def sensitivities(
 
     def response(x):
         thickness, support = x
-        ring = eqx.tree_at(
-            lambda r: (r.thickness, r.radius, r.k_support_radial),
-            p.ring,
-            (thickness, p.ring_pitch_radius + thickness / 2, support),
-        )
-        q = eqx.tree_at(lambda z: z.ring, p, ring)
+        q = eqx.tree_at(lambda z: (z.ring.thickness, z.ring.k_support_radial), p, (thickness, support))
         r = solve_moments(
-            pm.planetary(q),
+            pm.build(q),
             dt=dt,
             n_steps=n_steps,
             save_every=n_steps,
