@@ -349,3 +349,14 @@ def test_cli_modal_json_and_help(capsys):
         parser.parse_args(["back-to-back", "--help"])
     assert exc.value.code == 0
     assert "--out" in capsys.readouterr().out
+
+
+def test_figures_of_a_regime_shorter_than_the_running_mean_window(stationary, tmp_path):
+    """A regime shorter than the 20 ms running mean used to crash the figures (the window exceeded the series)."""
+    short = 120  # 12 ms at dt = 0.1 ms
+    clipped = jax.tree.map(
+        lambda x: x[:short] if hasattr(x, "shape") and x.ndim and x.shape[0] == len(stationary.times) else x,
+        stationary,
+    )
+    paths = study._figures(clipped, tmp_path, window_s=0.005)
+    assert paths and all(p.exists() and p.stat().st_size > 0 for p in paths)

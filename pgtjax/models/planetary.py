@@ -163,14 +163,14 @@ class PlanetaryParams(eqx.Module):
     def elastic_ring(self) -> RingParams:
         """The ring structure the model uses: ``ring`` with its centre radius derived, here and only here,
         as ``R = R_pitch + h / 2`` (the pitch circle on the rim's inner face, Model I), so that changing
-        ``ring.thickness`` (a sweep, a design variable) moves the centre line with it. ``ring.radius`` as
-        stored is not read by the planetary model."""
+        ``ring.thickness`` (a sweep, a design variable) moves the centre line with it. :func:`build` (and
+        every model function taking the parameters) applies it through :func:`resolved`."""
         return eqx.tree_at(lambda r: r.radius, self.ring, self.ring_pitch_radius + self.ring.thickness / 2)
 
     @property
     def pitch_offset(self):
         """e = R_mean - R_pitch (m): the pitch circle lies on the inner face of the rim (Model I)."""
-        return self.elastic_ring.radius - self.ring_pitch_radius
+        return self.ring.radius - self.ring_pitch_radius
 
     def planet_angles(self):
         return 2.0 * np.pi * np.arange(self.n_planets) / self.n_planets
@@ -178,6 +178,13 @@ class PlanetaryParams(eqx.Module):
 
 def _f(x):
     return jnp.asarray(x, dtype=jnp.float64)
+
+
+def resolved(p: PlanetaryParams) -> PlanetaryParams:
+    """``p`` with its derived quantities set from the independent ones (the ring's centre radius,
+    :attr:`PlanetaryParams.elastic_ring`). Done once, where the system is built, so that the time functions
+    evaluated inside the solvers' loops read the result instead of re-deriving it at every step."""
+    return eqx.tree_at(lambda q: q.ring, p, p.elastic_ring)
 
 
 def default_params(**ring_overrides) -> PlanetaryParams:
@@ -425,10 +432,10 @@ def ring_planet_lumped_part(p: PlanetaryParams, lay: Layout, n: int):
 
 def elastic_ring_part(p: PlanetaryParams, theta, nodal_inverse=None):
     """Ring part of g (over the ring DOFs) at contact angle ``theta``:
-    ``sin a u_r + cos a (u_tau - e u_theta)``. ``nodal_inverse``: the ring's
-    :func:`~pgtjax.models.ring.ring_nodal_inverse` if already formed."""
+    ``sin a u_r + cos a (u_tau - e u_theta)``. ``p``: :func:`resolved` parameters (this runs at every
+    step); ``nodal_inverse``: the ring's :func:`~pgtjax.models.ring.ring_nodal_inverse` if already formed."""
     a = p.mesh.pressure_angle
-    rows = ring_interpolation(p.elastic_ring, theta, nodal_inverse)
+    rows = ring_interpolation(p.ring, theta, nodal_inverse)
     return jnp.sin(a) * rows[0] + jnp.cos(a) * (rows[1] - p.pitch_offset * rows[2])
 
 
@@ -462,6 +469,7 @@ class ContactDirections(eqx.Module):
 
 
 def contact_directions(p: PlanetaryParams, lay: Layout) -> ContactDirections:
+    p = resolved(p)
     n = p.n_planets
     cols = [sun_planet_direction(p, lay, k) for k in range(n)]
     for k in range(n):
@@ -469,7 +477,7 @@ def contact_directions(p: PlanetaryParams, lay: Layout) -> ContactDirections:
         if p.ring_model == "rigid":
             g = g.at[lay.ring_start : lay.ring_start + 3].add(rigid_ring_part(p, p.planet_angles()[k]))
         cols.append(g)
-    nodal_inverse = ring_nodal_inverse(p.elastic_ring) if p.ring_model == "elastic" else None
+    nodal_inverse = ring_nodal_inverse(p.ring) if p.ring_model == "elastic" else None
     return ContactDirections(jnp.stack(cols, axis=1), p, lay, nodal_inverse)
 
 
@@ -600,7 +608,7 @@ def _damping(p: PlanetaryParams, lay: Layout, mass, k_mean):
 def build(p: PlanetaryParams | None = None) -> System:
     """Build the :class:`System` of thesis Eq. 3.43 / 3.54 (see the module docstring); ``None``: the
     embedded defaults. Parameters are validated here too, since ``eqx.tree_at`` bypasses ``__check_init__``."""
-    p = default_params() if p is None else p
+    p = resolved(default_params() if p is None else p)
     validate(p)
     lay = layout(p)
     ring = ring_block(p)  # assembled once for both matrices

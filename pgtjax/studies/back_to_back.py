@@ -591,7 +591,9 @@ def _figures(reg: RegimeResult, outdir: Path, window_s: float) -> list[Path]:
         out.append(plots.save(fig, outdir / f"{reg.name}_operating.png"))
 
         fig, ax = plt.subplots(2, 2, figsize=(8.0, 5.0), sharex=True)
-        n_avg = max(int(round(0.02 / float(t[1] - t[0]))), 1)  # 20 ms running mean (several mesh periods)
+        # 20 ms running mean (several mesh periods), shortened for a shorter run (mode="same" returns the
+        # longer of the two inputs, so the window must not exceed the series)
+        n_avg = min(max(int(round(0.02 / float(t[1] - t[0]))), 1), len(t))
         mean = lambda x: np.convolve(x, np.ones(n_avg) / n_avg, mode="same")  # noqa: E731
         for col, (j, name) in enumerate(((js, "sun-planet 1"), (jr, "ring-planet 1"))):
             for row, series in enumerate((reg.mesh.hertz_secant, reg.mesh.mesh_stiffness)):

@@ -89,10 +89,11 @@ def contact_point_observables(p: pm.PlanetaryParams, planet: int = 0) -> Observa
     """Ring displacement (inward radial, tangential; m) at the moving contact point of a planet (Fig. 3.9)."""
     lay = pm.layout(p)
     psi = float(p.planet_angles()[planet])
-    inverse = ring_nodal_inverse(p.elastic_ring)  # formed once, not at every time step
+    ring = p.elastic_ring  # derived and inverted once, not at every time step
+    inverse = ring_nodal_inverse(ring)
 
     def matrix(t):
-        rows = ring_interpolation(p.elastic_ring, p.mesh.carrier_speed * t + psi, inverse)[:2]
+        rows = ring_interpolation(ring, p.mesh.carrier_speed * t + psi, inverse)[:2]
         return jnp.zeros((2, lay.n_dof)).at[:, lay.ring_start : lay.ring_start + lay.n_ring].set(rows)
 
     return Observables(
