@@ -11,7 +11,11 @@ what those return; ``python3 -m pgtjax.cli`` runs :func:`main` like the ``pgtjax
 from __future__ import annotations
 
 import argparse
+import os
+import signal
 import sys
+import threading
+from pathlib import Path
 
 from .._failure import SolverError
 from . import back_to_back, gear_pair, planetary, ring
@@ -33,13 +37,41 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _check_writable(out) -> None:
+    """``ValueError`` naming ``--out`` unless the folder can be created and written, checked before any
+    computation (a read-only place or a regular file would otherwise fail only after the whole study)."""
+    path = Path(out)
+    probe = path / f".pgtjax-write-check-{os.getpid()}"
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as err:
+        raise ValueError(
+            f"`--out` {str(path)!r} cannot be created or written: {err.strerror or err}"
+        ) from None
+
+
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command is None:
         parser.print_help()
         return 0
+    out = getattr(args, "out", None)
+    where = f"; files already in {str(out)!r} may be incomplete" if out is not None else ""
+
+    def interrupted(signum, frame):
+        # leave from the handler itself: a KeyboardInterrupt raised inside a callback (JAX's garbage-collection
+        # hook, say) is swallowed there, and the interpreter's teardown while XLA threads run can crash
+        os.write(2, f"pgtjax: interrupted{where}\n".encode())
+        os._exit(130)
+
+    main_thread = threading.current_thread() is threading.main_thread()  # handlers live there only
+    previous = signal.signal(signal.SIGINT, interrupted) if main_thread else None
     try:
+        if out is not None:
+            _check_writable(out)
         return args.func(args)
     except (ValueError, argparse.ArgumentTypeError) as err:  # bad input: a clear message, no traceback
         print(f"pgtjax: error: {err}", file=sys.stderr)
@@ -47,3 +79,9 @@ def main(argv=None) -> int:
     except SolverError as err:  # a numerical failure, with when and where
         print(f"pgtjax: numerical failure: {err}", file=sys.stderr)
         return 1
+    except OSError as err:  # a file that could not be read or written: one line
+        print(f"pgtjax: error: {err}", file=sys.stderr)
+        return 1
+    finally:
+        if main_thread:
+            signal.signal(signal.SIGINT, previous)
