@@ -16,6 +16,7 @@ those.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import matplotlib as mpl
@@ -152,6 +153,13 @@ def save(fig, path) -> Path:
     """Write ``fig`` to ``path`` (format from the suffix) and close it if pyplot manages it (the studies' own
     figures; the builders' figures are not in pyplot and need no closing); returns ``path`` as a Path."""
     path = Path(path)
-    fig.savefig(path)
-    plt.close(fig)  # a no-op for a figure that pyplot does not manage
+    # written under a temporary name and renamed into place: an interrupted run leaves no truncated image
+    # under the final name. dpi and bbox given here: figures are often saved after the style's rc_context.
+    partial = path.with_name(f".{path.stem}.partial-{os.getpid()}{path.suffix}")
+    try:
+        fig.savefig(partial, dpi=STYLE["savefig.dpi"], bbox_inches=STYLE["savefig.bbox"])
+        os.replace(partial, path)
+    finally:
+        partial.unlink(missing_ok=True)
+        plt.close(fig)  # a no-op for a figure that pyplot does not manage
     return path
