@@ -38,7 +38,7 @@ def main():
 
     def build(thickness, k_radial):
         ring = eqx.tree_at(lambda r: (r.thickness, r.k_support_radial), p0.ring, (thickness, k_radial))
-        return rml.ring_moving_load_system(eqx.tree_at(lambda q: q.ring, p0, ring), observe_contact=False)
+        return rml.build(eqx.tree_at(lambda q: q.ring, p0, ring))
 
     system = build(p0.ring.thickness, p0.ring.k_support_radial)
     u0, v0 = rml.static_initial_state(system)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy import integrate, optimize, stats
 
-from pgtjax.contact import Backlash
+from pgtjax._contact import Backlash
 
 pytestmark = pytest.mark.filterwarnings("ignore::scipy.integrate.IntegrationWarning")
 
@@ -156,7 +156,7 @@ def test_hand_written_flank_derivatives_equal_plain_autodiff(crit):
     """The custom JVP of contact._flank_statistics against plain autodiff of the same primal
     (contact._flank_values), on edge cases the finite-difference grid does not reach: sigma = 0, b = 0,
     z = 0 (mu = +-b), deep saturation and tiny sigma."""
-    from pgtjax.contact import _flank_statistics, _flank_values
+    from pgtjax._contact import _flank_statistics, _flank_values
 
     mu = jnp.array([0.0, 1.0, -1.0, 0.3, 2.5, -45.0, 1e-3, 0.0, 1.0, 0.7])
     sigma = jnp.array([0.0, 0.0, 1.0, 0.5, 1e-3, 1.0, 1e-9, 2.0, 3.0, 30.0])

@@ -237,7 +237,7 @@ def test_constant_stiffness_path_equals_general_path_with_backlash(criterion, sc
 
 def _contact_space_data(nc, seed):
     """A contact-space step: S = G^T A^-1 G symmetric positive definite, Y a covariance."""
-    from pgtjax.linearization import _StepData
+    from pgtjax._linearization import _StepData
 
     rng = np.random.default_rng(seed)
     a = rng.standard_normal((nc, nc))
@@ -255,11 +255,11 @@ def _contact_space_data(nc, seed):
 @pytest.mark.parametrize("criterion", ["force", "energy", "energy_origin"])
 def test_closed_form_fixed_point_jacobian_equals_forward_mode_autodiff(criterion):
     """The Newton Jacobian of the contact-space fixed point is assembled in closed form from the law's own
-    derivatives (pgtjax.linearization._evaluate); it must equal jax.jacfwd of the residual, including a
+    derivatives (pgtjax._linearization._evaluate); it must equal jax.jacfwd of the residual, including a
     contact with sigma = 0 (where the sigma rows vanish) and contacts in and out of the dead zone."""
     import jax
 
-    from pgtjax.linearization import _evaluate
+    from pgtjax._linearization import _evaluate
 
     nc = 4
     data = _contact_space_data(nc, 3)
@@ -283,7 +283,7 @@ def _tangent_case(criterion, data):
     and a data tangent, for the tangent-rule tests."""
     import jax
 
-    from pgtjax.linearization import _end_terms
+    from pgtjax._linearization import _end_terms
 
     nc = data.mean.shape[0]
     d_data = jax.tree.map(
@@ -301,7 +301,7 @@ def test_implicit_tangent_of_end_terms_equals_autodiff(criterion):
     along the same (dz, d data)."""
     import jax
 
-    from pgtjax.linearization import _end_terms, _implicit_solution
+    from pgtjax._linearization import _end_terms, _implicit_solution
 
     nc = 4
     data = _contact_space_data(nc, 5)
@@ -324,7 +324,7 @@ def test_implicit_tangent_of_fixed_point_equals_autodiff_formula(criterion, case
     column: the std derivative is zero there, as safe_sqrt's) and where rounding left Y asymmetric."""
     import jax
 
-    from pgtjax.linearization import _evaluate, _implicit_solution
+    from pgtjax._linearization import _evaluate, _implicit_solution
 
     nc = 4
     data = _contact_space_data(nc, 5)

@@ -165,7 +165,7 @@ def test_initial_covariance_and_observables_agree_with_the_recursion():
 
 def test_pattern_table_contact_solve_equals_per_sample_newton():
     """Batched backlash solve (Jacobian inverses of all 2^nc contact patterns) vs per-sample Newton."""
-    from pgtjax.newmark import solve_contacts, solve_contacts_batch
+    from pgtjax._newmark import solve_contacts, solve_contacts_batch
 
     rng = np.random.default_rng(3)
     nc = 4
@@ -248,7 +248,7 @@ def _chain_with_contacts(n=14, seed=5):
 def test_eigen_coordinates_reproduce_the_physical_coordinate_scheme(scheme):
     """Stepping the samples in the eigenbasis of the contact-free map is the same discretization: on the same
     draws every statistic agrees with the physical-coordinate step to rounding."""
-    from pgtjax.eigenbasis import eigen_propagator
+    from pgtjax._eigenbasis import eigen_propagator
 
     system, obs = _chain_with_contacts()
     n = system.n_dof
@@ -296,7 +296,7 @@ def test_eigen_coordinates_reproduce_the_physical_coordinate_scheme(scheme):
 
 
 def test_eigen_coordinates_refused_where_they_cannot_be_used(monkeypatch):
-    import pgtjax.eigenbasis as eigenbasis
+    import pgtjax._eigenbasis as eigenbasis
 
     kw = dict(n_samples=10, key=KEY, dt=0.02, n_steps=4, progress=False)
     varying = time_varying_system()  # constant K and C: accepted
@@ -335,7 +335,7 @@ def test_affine_piece_shortcut_equals_the_residual_iteration(case):
     shortcut); a law without ``affine_piece`` always iterates on the residual. Both agree, whether every
     sample keeps its piece (weakly coupled contacts far from the flanks: only the shortcut runs) or many do
     not (strong coupling: the residual iteration runs)."""
-    from pgtjax.newmark import solve_contacts_batch
+    from pgtjax._newmark import solve_contacts_batch
 
     class ResidualOnly(pg.Backlash):
         def affine_piece(self, delta, k, b):

@@ -85,36 +85,66 @@ def test_validation_errors():
         rml.support_case(_small(), 4)
 
 
-def test_monte_carlo_matches_recursion_dtypes_and_observers():
+def test_monte_carlo_matches_recursion_dtypes_and_observables():
     p = _small(carrier_speed=30.0)
-    s = rml.ring_moving_load_system(p, observe_mid=True)
-    for x in (s.mass, s.damping, s.stiffness(0.01), s.load(0.01), s.noise_input(0.01)):
+    s = rml.build(p)
+    for x in (s.mass, s.damping, s.stiffness, s.load(0.01), s.noise_input(0.01)):
         assert x.dtype == jnp.float64
-    assert s.dof_names[-2:] == (rml.OBSERVER_NAME, rml.MID_NAME)
+    assert s.dof_names == tuple(rml.ring_dof_names(p.ring))  # no observer DOFs: outputs are Observables
+    outputs = rml.observables(p)
+    assert outputs.names == (rml.OBSERVER_NAME, rml.MID_NAME)
     u0, v0 = rml.static_initial_state(s)
-    kw = dict(dt=2e-4, n_steps=60, save_every=20, initial_displacement=u0, initial_velocity=v0)
-    sl = pg.solve_moments(s, **kw)
-    assert sl.mean_u.dtype == jnp.float64 and sl.std_u.dtype == jnp.float64
-    # observer rows equal the interpolated contact point and the mid-node DOF
-    from pgtjax.models.ring import ring_displacement_at
+    kw = dict(
+        dt=2e-4, n_steps=60, save_every=20, initial_displacement=u0, initial_velocity=v0, observables=outputs
+    )
+    sl = pg.solve_moments(s, covariance_dofs="all", **kw)
+    assert sl.mean_obs.dtype == jnp.float64 and sl.std_obs.dtype == jnp.float64
+    # the contact-point output is the ring interpolated under load 1 (an independent evaluation of the same
+    # shape functions), its mean and its std from the full covariance; the mid-node output is that DOF
+    from pgtjax.models.ring import ring_displacement_at, ring_interpolation
 
-    n = p.ring.n_dof
+    mid = sl.dof(f"ring_node{rml.mid_node(p.ring)}_radial")
+    c, m = sl.observable(rml.OBSERVER_NAME), sl.observable(rml.MID_NAME)
     for k, t in enumerate(np.asarray(sl.times)):
         u = sl.mean_u[k]
-        ur = float(ring_displacement_at(p.ring, rml.contact_angle(p, t), u[:n])[0])
-        assert abs(float(u[sl.dof(rml.OBSERVER_NAME)]) - ur) <= 1e-7 * float(jnp.max(jnp.abs(u[:n])))
-    mid = sl.dof(f"ring_node{rml.mid_node(p.ring)}_radial")
-    np.testing.assert_allclose(sl.std_u[:, sl.dof(rml.MID_NAME)], sl.std_u[:, mid], rtol=1e-6, atol=1e-12)
+        ur = float(ring_displacement_at(p.ring, rml.contact_angle(p, t), u)[0])
+        np.testing.assert_allclose(
+            float(sl.mean_obs[k, c]), ur, rtol=1e-12, atol=1e-14 * float(jnp.abs(u).max())
+        )
+        row = ring_interpolation(p.ring, rml.contact_angle(p, t))[0]
+        var = float(row @ sl.cov_uu[k] @ row)
+        np.testing.assert_allclose(float(sl.std_obs[k, c]) ** 2, var, rtol=1e-10, atol=1e-30)
+    np.testing.assert_allclose(sl.std_obs[:, m], sl.std_u[:, mid], rtol=1e-12)
+    np.testing.assert_allclose(sl.mean_obs[:, m], sl.mean_u[:, mid], rtol=1e-12)
     # Monte Carlo of the same discretisation: within 3 standard errors at every saved time
     mc = pg.monte_carlo(s, n_samples=400, key=jax.random.key(3), progress=False, **kw)
-    assert mc.mean_u.dtype == jnp.float64
+    assert mc.mean_u.dtype == jnp.float64 and mc.mean_obs.dtype == jnp.float64
+    se_m, se_s = mc.standard_error("obs")
+    for j, name in enumerate(outputs.names):
+        for k in (1, 2, 3):
+            assert abs(float(mc.mean_obs[k, j] - sl.mean_obs[k, j])) < 3 * float(se_m[k, j]), (name, k)
+            assert abs(float(mc.std_obs[k, j] - sl.std_obs[k, j])) < 3 * float(se_s[k, j]), (name, k)
     se_m, se_s = mc.standard_error("u")
-    names = [rml.OBSERVER_NAME, rml.MID_NAME, "ring_node4_tangential", "ring_node7_rotation"]
-    for name in names:
+    for name in ("ring_node4_tangential", "ring_node7_rotation"):
         j = sl.dof(name)
         for k in (1, 2, 3):
             assert abs(float(mc.mean_u[k, j] - sl.mean_u[k, j])) < 3 * float(se_m[k, j]), (name, k)
             assert abs(float(mc.std_u[k, j] - sl.std_u[k, j])) < 3 * float(se_s[k, j]), (name, k)
+
+
+def test_modal_model_outputs_include_the_static_correction():
+    """With n_modes, the outputs' mean adds c R F_d (the dropped modes' quasi-static part): at the quasi-static
+    start it equals the full model's static deflection under the loads."""
+    p = _small(carrier_speed=30.0)
+    full, modal = rml.build(p), rml.build(p, n_modes=12)
+    u_full, _ = rml.static_initial_state(full)
+    q, _ = rml.static_initial_state(modal)
+    y_full = rml.observables(p)(0.0) @ u_full
+    out = rml.observables(p, n_modes=12)
+    y_modal = out(0.0) @ q + out.shift(0.0)
+    np.testing.assert_allclose(np.asarray(y_modal), np.asarray(y_full), rtol=1e-9)
+    with pytest.raises(ValueError, match="contact.*mid"):
+        rml.observables(p, contact=False, mid=False)
 
 
 def test_gradient_matches_finite_differences():
@@ -124,7 +154,7 @@ def test_gradient_matches_finite_differences():
     def objective(thickness, k_support):
         ring = eqx.tree_at(lambda r: (r.thickness, r.k_support_radial), p0.ring, (thickness, k_support))
         p = eqx.tree_at(lambda q: q.ring, p0, ring)
-        s = rml.ring_moving_load_system(p, observe_contact=False)
+        s = rml.build(p)
         r = pg.solve_moments(s, dt=2e-4, n_steps=30, save_every=5)
         return jnp.max(r.std_u[:, r.dof(mid)])  # max over the saved times (its location is stable, see below)
 
@@ -183,7 +213,7 @@ def test_cli_smoke(tmp_path, capsys):
     assert (tmp_path / "summary.json").is_file() and (tmp_path / "fig6_7_sweep.png").exists() is False
     assert (tmp_path / "fig6_4_mid_base.png").is_file() and (tmp_path / "modes_ch6_ring.png").is_file()
     res, attrs = pg.load_results(tmp_path / "base_sl.npz")
-    assert rml.MID_NAME in res.dof_names and attrs["carrier_speed_rad_s"] == 2.8
+    assert rml.MID_NAME in res.observable_names and attrs["carrier_speed_rad_s"] == 2.8
     capsys.readouterr()
     # a bad input is a clear error with exit code 2
     bad = tmp_path / "bad.toml"

@@ -93,7 +93,7 @@ def test_gap_probability_far_from_the_gap_keeps_its_digits():
     result_like = pg.solve_moments(_oscillator(), dt=0.01, n_steps=2)
     mean = jnp.array([[12.0 * B], [-12.0 * B]])
     std = jnp.full((2, 1), B)
-    from pgtjax.results import _gaussian_gap_probability
+    from pgtjax._results import _gaussian_gap_probability
 
     p = _gaussian_gap_probability(mean, std, jnp.array([[B]]))
     exact = norm.sf(11.0) - norm.sf(13.0)  # P(-b < x < b) for x ~ N(12 b, b^2)

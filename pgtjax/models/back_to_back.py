@@ -104,10 +104,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import params as _params
+from .._contact import Backlash, ContactLaw
+from .._deterministic import static_equilibrium as solve_static
+from .._system import Contacts, System, at_time
 from .._validate import check_range
-from ..contact import Backlash, ContactLaw
-from ..deterministic import static_equilibrium as solve_static
-from ..system import Contacts, System, at_time
 from . import mesh_stiffness as ms
 
 Array = jax.Array
@@ -899,7 +899,7 @@ def mesh_history(model: BenchModel, times, delta) -> MeshHistory:
 def accelerations(model: BenchModel, times, u, v, force) -> Array:
     """Accelerations [m/s^2] (n_t, 12) from the equation of motion at the saved states:
     ``M a = F(t) - C v - K u - G f``."""
-    from ..system import at_time
+    from .._system import at_time
 
     s = model.system
     F = jax.vmap(lambda t: at_time(s.load, t))(jnp.asarray(times, jnp.float64))

@@ -28,9 +28,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import params as _params
+from .._contact import Backlash
+from .._system import Contacts, FourierSeries, System
 from .._validate import check_range
-from ..contact import Backlash
-from ..system import Contacts, FourierSeries, System
 
 DOF_NAMES = ("y1", "y2", "z")
 CONTACT_NAMES = ("mesh",)

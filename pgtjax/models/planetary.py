@@ -57,10 +57,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import params as _params
+from .._contact import Backlash
+from .._modal import symmetric_eigen
+from .._system import Contacts, System
 from .._validate import check_range
-from ..contact import Backlash
-from ..modal import symmetric_eigen
-from ..system import Contacts, System
 from .ring import RingParams, ring_dof_names, ring_interpolation, ring_matrices, ring_nodal_inverse
 
 

@@ -48,8 +48,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from pgtjax._modal import symmetric_eigen
 from pgtjax._validate import check_range
-from pgtjax.modal import symmetric_eigen
 from pgtjax.models import curved_beam as cb
 
 __all__ = [

@@ -39,18 +39,12 @@ mode) gives ``C = M Phi diag(2 zeta_k w_k) Phi^T M`` (computed with ``eigh``; pr
 differentiating: ``eigh``'s derivative is ill-conditioned at the ring's nearly degenerate mode pairs).
 
 Contact-point output. The response *under* load 1, ``u_r(theta_1(t)) = a_r(theta_1(t)) U`` (what
-:func:`ring_displacement_at` evaluates), is a time-varying combination of nodal DOFs whose standard deviation
-needs cross-covariances the engine does not return. The system therefore carries one *observer* DOF ``y``
-(name ``contact1_radial``) with the one-way-coupled row
+:func:`ring_displacement_at` evaluates), is a time-varying combination of nodal DOFs: :func:`observables`
+gives it (and the mid-node's u_r) as :class:`pgtjax.Observables` ``y = c(t) U``, whose mean and standard
+deviation the solvers evaluate exactly at every saved time. (Earlier versions appended an "observer" DOF
+with a 1e-16 s^2 mass-to-stiffness ratio that tracked ``y`` to ~1e-8 relative.)
 
-    m_y y'' + k_y (y - a_r(theta_1(t)) U) = 0,    m_y / k_y = 1e-16 s^2.
-
-The Newmark step of such a row keeps ``e = y - a_r U`` at ``e_1 = -e_0 + O(4 m_y / (h^2 k_y) (y_0 - y_1 + h v_0))``
-(the trapezoidal rule on an algebraic constraint), i.e. ``y = a_r U`` to ~1e-8 relative for every step used
-here, in the mean, the covariance and the Monte Carlo samples alike; the ring rows do not see ``y`` (the
-stiffness matrix is non-symmetric, which the engine supports). ``observe_contact=False`` drops it.
-
-Reported points: the contact point (observer DOF) and the mid-node between the first two bolts
+Reported points: the contact point and the mid-node between the first two bolts
 (:func:`mid_node`; node 3 of the thesis's 36-element ring, i.e. 30 degrees).
 
 Units: SI (m, kg, N, s, rad); nodal rotations in rad, nodal moments in N m.
@@ -60,6 +54,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -67,9 +62,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import params as _params
+from .._modal import symmetric_eigen
+from .._system import Observables, System
 from .._validate import check_range
-from ..modal import symmetric_eigen
-from ..system import System
 from .ring import (
     RingParams,
     ring_dof_names,
@@ -82,6 +77,8 @@ from .ring import (
 __all__ = [
     "RingMovingLoadParams",
     "MovingLoads",
+    "build",
+    "observables",
     "ring_moving_load_system",
     "load_params",
     "default_params",
@@ -97,11 +94,10 @@ __all__ = [
 
 #: spectral density of the engine's convention ``E[w w] = 2 pi S0 delta`` that makes W a unit white noise.
 SPECTRAL_DENSITY = 1.0 / (2.0 * math.pi)
-#: DOF name of the contact-point observer.
+#: name of the output "radial ring displacement under load 1" (:func:`observables`).
 OBSERVER_NAME = "contact1_radial"
-#: DOF name of the mid-node observer.
+#: name of the output "radial displacement of the mid-node" (:func:`observables`).
 MID_NAME = "mid_node_radial"
-_OBSERVER_MASS_RATIO = 1e-16  # m_y / k_y [s^2]
 
 
 class RingMovingLoadParams(eqx.Module):
@@ -159,27 +155,11 @@ class RingMovingLoadParams(eqx.Module):
             lm, lk = rayleigh_coefficients(0.02, 8590.0, 33000.0)
             rayleigh_mass = lm if rayleigh_mass is None else rayleigh_mass
             rayleigh_stiffness = lk if rayleigh_stiffness is None else rayleigh_stiffness
-        check_range("carrier_speed", carrier_speed, lo=0.0, lo_closed=False, unit="rad/s")
-        check_range("mean_force", mean_force, unit="N")
-        check_range("force_amplitude", force_amplitude, lo=0.0, unit="N")
-        check_range("mesh_frequency_ratio", mesh_frequency_ratio, lo=0.0)
-        check_range("noise_intensity", noise_intensity, lo=0.0, unit="N sqrt(s)")
-        check_range("pressure_angle", pressure_angle, lo=0.0, hi=math.pi / 2, hi_closed=False, unit="rad")
-        check_range("initial_angle", initial_angle, unit="rad")
-        check_range("rayleigh_mass", rayleigh_mass, lo=0.0, unit="1/s")
-        check_range("rayleigh_stiffness", rayleigh_stiffness, lo=0.0, unit="s")
         if np.shape(noise_intensity) not in ((), (n_loads,)):
             raise ValueError(
                 f"`noise_intensity` must be a scalar or have shape ({n_loads},) (one per load), "
                 f"got {np.shape(noise_intensity)}"
             )
-        if modal_damping_ratio is not None:
-            check_range("modal_damping_ratio", modal_damping_ratio, lo=0.0)
-            if np.shape(modal_damping_ratio) not in ((), (ring.n_dof,)):
-                raise ValueError(
-                    f"`modal_damping_ratio` must be a scalar or have shape ({ring.n_dof},) "
-                    f"(one per ring mode), got {np.shape(modal_damping_ratio)}"
-                )
         f = lambda x: jnp.asarray(x, dtype=jnp.float64)  # noqa: E731
         self.ring = ring
         self.carrier_speed = f(carrier_speed)
@@ -193,6 +173,32 @@ class RingMovingLoadParams(eqx.Module):
         self.rayleigh_stiffness = f(rayleigh_stiffness)
         self.modal_damping_ratio = None if modal_damping_ratio is None else f(modal_damping_ratio)
         self.n_loads = int(n_loads)
+
+    def __check_init__(self):
+        # values; traced values (a model built inside jit/grad/vmap) pass
+        check_range("carrier_speed", self.carrier_speed, lo=0.0, lo_closed=False, unit="rad/s")
+        check_range("mean_force", self.mean_force, unit="N")
+        check_range("force_amplitude", self.force_amplitude, lo=0.0, unit="N")
+        check_range("mesh_frequency_ratio", self.mesh_frequency_ratio, lo=0.0)
+        check_range("noise_intensity", self.noise_intensity, lo=0.0, unit="N sqrt(s)")
+        check_range(
+            "pressure_angle", self.pressure_angle, lo=0.0, hi=math.pi / 2, hi_closed=False, unit="rad"
+        )
+        check_range("initial_angle", self.initial_angle, unit="rad")
+        check_range("rayleigh_mass", self.rayleigh_mass, lo=0.0, unit="1/s")
+        check_range("rayleigh_stiffness", self.rayleigh_stiffness, lo=0.0, unit="s")
+        if np.shape(self.noise_intensity) != (self.n_loads,):
+            raise ValueError(
+                f"`noise_intensity` must be a scalar or have shape ({self.n_loads},) (one per load), "
+                f"got {np.shape(self.noise_intensity)}"
+            )
+        if self.modal_damping_ratio is not None:
+            check_range("modal_damping_ratio", self.modal_damping_ratio, lo=0.0)
+            if np.shape(self.modal_damping_ratio) not in ((), (self.ring.n_dof,)):
+                raise ValueError(
+                    f"`modal_damping_ratio` must be a scalar or have shape ({self.ring.n_dof},) "
+                    f"(one per ring mode), got {np.shape(self.modal_damping_ratio)}"
+                )
 
     def replace(self, **changes) -> RingMovingLoadParams:
         """A copy with some fields changed (the result is validated again)."""
@@ -271,15 +277,18 @@ class MovingLoads(eqx.Module):
         return self.unit_load_vectors(t).T * self.params.noise_intensity[None, :]
 
 
-class _Outputs(eqx.Module):
-    """Observation rows ``c(t)`` (n_obs, 3 L) in ring DOFs: u_r under load 1, then the mid-node u_r."""
+class _OutputRows(eqx.Module):
+    """``C(t)`` (n_obs, n_q) of the outputs in the system's coordinates: u_r under load 1 and/or the mid-node
+    u_r, as rows ``c(t)`` over the ring DOFs times the modal basis T (identity for the full model)."""
 
     loads: MovingLoads
+    basis: jax.Array | None  # T (3 L, n_q) or None (identity)
     mid_dof: int = eqx.field(static=True)
     contact: bool = eqx.field(static=True)
     mid: bool = eqx.field(static=True)
 
-    def __call__(self, t):
+    def ring_rows(self, t):
+        """c(t) over the ring's nodal DOFs, (n_obs, 3 L)."""
         ring = self.loads.params.ring
         rows = []
         if self.contact:
@@ -288,19 +297,27 @@ class _Outputs(eqx.Module):
             rows.append(jnp.zeros((ring.n_dof,)).at[self.mid_dof].set(1.0))
         return jnp.stack(rows)
 
+    def __call__(self, t):
+        c = self.ring_rows(t)
+        return c if self.basis is None else c @ self.basis
+
+
+class _StaticCorrection(eqx.Module):
+    """``d(t) = c(t) R F_d(t)``: the dropped modes' quasi-static response at the outputs (modal model)."""
+
+    rows: _OutputRows
+    residual: jax.Array  # R (3 L, 3 L)
+
+    def __call__(self, t):
+        return self.rows.ring_rows(t) @ (self.residual @ self.rows.loads.nodal_forces(t))
+
 
 class _Field(eqx.Module):
-    """``t -> array`` of the ring system in its coordinates ``q`` (``U = T q``), observer rows appended.
-
-    ``load``: ``[T^T F_d(t); k_y c(t) R F_d(t)]`` (R = residual flexibility of the dropped modes, the static
-    correction of a modal model; zero for the full model). ``noise``: ``[T^T B(t); 0]``.
-    """
+    """``t -> array`` of the ring system in its coordinates ``q`` (``U = T q``): ``load`` ``T^T F_d(t)``,
+    ``noise`` ``T^T B(t)``."""
 
     loads: MovingLoads
     basis: jax.Array | None  # T (3 L, n_q) or None (identity)
-    outputs: _Outputs | None
-    residual: jax.Array | None  # R (3 L, 3 L) or None
-    observer_stiffness: jax.Array
     kind: str = eqx.field(static=True)
 
     def _project(self, x):
@@ -308,39 +325,8 @@ class _Field(eqx.Module):
 
     def __call__(self, t):
         if self.kind == "load":
-            f = self.loads.nodal_forces(t)
-            parts = [self._project(f)]
-            if self.outputs is not None:
-                c = self.outputs(t)
-                corr = jnp.zeros((c.shape[0],)) if self.residual is None else c @ (self.residual @ f)
-                parts.append(self.observer_stiffness * corr)
-            return jnp.concatenate(parts)
-        b = self._project(self.loads.noise_matrix(t))
-        if self.outputs is None:
-            return b
-        n_obs = int(self.outputs.contact) + int(self.outputs.mid)
-        return jnp.concatenate([b, jnp.zeros((n_obs, b.shape[1]), b.dtype)], axis=0)
-
-
-class _ObservedStiffness(eqx.Module):
-    """K(t) with the observer rows ``k_y (y - c(t) T q)`` appended (module docstring)."""
-
-    stiffness: jax.Array  # (n_q, n_q)
-    basis: jax.Array | None
-    outputs: _Outputs
-    observer_stiffness: jax.Array
-
-    def __call__(self, t):
-        n = self.stiffness.shape[0]
-        c = self.outputs(t)
-        if self.basis is not None:
-            c = c @ self.basis
-        n_obs = c.shape[0]
-        top = jnp.concatenate([self.stiffness, jnp.zeros((n, n_obs))], axis=1)
-        bottom = jnp.concatenate(
-            [-self.observer_stiffness * c, self.observer_stiffness * jnp.eye(n_obs)], axis=1
-        )
-        return jnp.concatenate([top, bottom], axis=0)
+            return self._project(self.loads.nodal_forces(t))
+        return self._project(self.loads.noise_matrix(t))
 
 
 def _modes(M, K):
@@ -357,25 +343,19 @@ def _damping_matrix(p: RingMovingLoadParams, M, K):
     return (mphi * (2.0 * jnp.broadcast_to(p.modal_damping_ratio, w.shape) * w)[None, :]) @ mphi.T
 
 
-def ring_moving_load_system(
-    p: RingMovingLoadParams,
-    *,
-    observe_contact: bool = True,
-    observe_mid: bool = False,
-    n_modes: int | None = None,
-) -> System:
-    """The ch. 6 system (Eq. 6.27) as a :class:`pgtjax.System` (differentiable in every array leaf of ``p``).
+class _Reduction(NamedTuple):
+    """The ring system in its coordinates: matrices, modal basis T and residual flexibility R (or None)."""
 
-    DOFs: the ring's ``3 L`` nodal DOFs (:func:`ring_dof_names`) or, with ``n_modes``, the modal coordinates
-    ``mode1..modeK`` of the K lowest modes of the supported ring (``U = Phi_K q``, M-orthonormal; damping
-    ``Phi^T C Phi``). Then the observers (module docstring): ``contact1_radial`` (u_r under load 1, with
-    ``observe_contact``) and ``mid_node_radial`` (u_r of :func:`mid_node`, with ``observe_mid``; always added
-    for a modal model, whose DOFs are not nodal) [m, inward positive]. In a modal model the observers' *mean*
-    includes the static correction ``c R F_d(t)`` of the dropped modes (residual flexibility
-    ``R = K^-1 - Phi_K Omega^-2 Phi_K^T``); the noise part of the dropped modes is neglected (their variance
-    falls like ``1 / (lambda_K omega^4)``). ``load`` and ``noise_input`` are ``equinox.Module`` callables of t;
-    ``spectral_density`` = 1 / (2 pi) (unit white noises W_n).
-    """
+    mass: jax.Array
+    stiffness: jax.Array
+    damping: jax.Array
+    basis: jax.Array | None
+    residual: jax.Array | None
+    names: list
+    units: list
+
+
+def _check_n_modes(p, n_modes):
     if not isinstance(p, RingMovingLoadParams):
         raise ValueError(f"`p` must be a RingMovingLoadParams, got {type(p).__name__}")
     L3 = p.ring.n_dof
@@ -383,45 +363,85 @@ def ring_moving_load_system(
         isinstance(n_modes, bool) or not isinstance(n_modes, int | np.integer) or not 1 <= n_modes <= L3
     ):
         raise ValueError(f"`n_modes` must be None (full model) or an integer in [1, {L3}], got {n_modes!r}")
+
+
+def _reduction(p: RingMovingLoadParams, n_modes: int | None) -> _Reduction:
     M, K = ring_matrices(p.ring)
     C = _damping_matrix(p, M, K)
-    loads = MovingLoads(p, ring_nodal_inverse(p.ring))
     if n_modes is None:
-        basis = residual = None
         names = ring_dof_names(p.ring)
         units = [{"radial": "m", "tangential": "m", "rotation": "rad"}[n.rsplit("_", 1)[1]] for n in names]
-    else:
-        phi, w = _modes(M, K)
-        basis, wk = phi[:, :n_modes], w[:n_modes]
-        residual = jnp.linalg.inv(K) - (basis / wk[None, :] ** 2) @ basis.T
-        M, K, C = jnp.eye(n_modes), jnp.diag(wk**2), basis.T @ C @ basis
-        names = [f"mode{k + 1}" for k in range(n_modes)]
-        units = ["m sqrt(kg)"] * n_modes
-        observe_mid = True
-    outputs = None
-    k_y = jnp.max(jnp.abs(jnp.diagonal(K)))  # observer rows on the scale of the structure's rows
-    if observe_contact or observe_mid:
-        outputs = _Outputs(loads, 3 * mid_node(p.ring), observe_contact, observe_mid)
-        n_q, n_obs = M.shape[0], int(observe_contact) + int(observe_mid)
-        n = n_q + n_obs
-        m_y = _OBSERVER_MASS_RATIO * k_y
-        M = jnp.zeros((n, n)).at[:n_q, :n_q].set(M).at[n_q:, n_q:].set(m_y * jnp.eye(n_obs))
-        C = jnp.zeros((n, n)).at[:n_q, :n_q].set(C)
-        stiffness = _ObservedStiffness(K, basis, outputs, k_y)
-        names = names + [OBSERVER_NAME] * observe_contact + [MID_NAME] * observe_mid
-        units = units + ["m"] * n_obs
-    else:
-        stiffness = K
-    return System(
-        mass=M,
-        stiffness=stiffness,
-        damping=C,
-        load=_Field(loads, basis, outputs, residual, k_y, "load"),
-        noise_input=_Field(loads, basis, outputs, residual, k_y, "noise"),
-        spectral_density=SPECTRAL_DENSITY,
-        dof_names=names,
-        dof_units=units,
+        return _Reduction(M, K, C, None, None, names, units)
+    phi, w = _modes(M, K)
+    basis, wk = phi[:, :n_modes], w[:n_modes]
+    residual = jnp.linalg.inv(K) - (basis / wk[None, :] ** 2) @ basis.T
+    names = [f"mode{k + 1}" for k in range(n_modes)]
+    return _Reduction(
+        jnp.eye(n_modes),
+        jnp.diag(wk**2),
+        basis.T @ C @ basis,
+        basis,
+        residual,
+        names,
+        ["m sqrt(kg)"] * n_modes,
     )
+
+
+def build(p: RingMovingLoadParams | None = None, *, n_modes: int | None = None) -> System:
+    """The ch. 6 system (Eq. 6.27) as a :class:`pgtjax.System` (differentiable in every array leaf of ``p``;
+    ``None``: the embedded defaults).
+
+    DOFs: the ring's ``3 L`` nodal DOFs (:func:`ring_dof_names`) or, with ``n_modes``, the modal coordinates
+    ``mode1..modeK`` of the K lowest modes of the supported ring (``U = Phi_K q``, M-orthonormal; damping
+    ``Phi^T C Phi``). The ring under the moving load and at the mid-node are reported through
+    :func:`observables`. ``load`` and ``noise_input`` are ``equinox.Module`` callables of t;
+    ``spectral_density`` = 1 / (2 pi) (unit white noises W_n).
+    """
+    p = default_params() if p is None else p
+    _check_n_modes(p, n_modes)
+    red = _reduction(p, n_modes)
+    loads = MovingLoads(p, ring_nodal_inverse(p.ring))
+    return System(
+        mass=red.mass,
+        stiffness=red.stiffness,
+        damping=red.damping,
+        load=_Field(loads, red.basis, "load"),
+        noise_input=_Field(loads, red.basis, "noise"),
+        spectral_density=SPECTRAL_DENSITY,
+        dof_names=red.names,
+        dof_units=red.units,
+    )
+
+
+def ring_moving_load_system(p: RingMovingLoadParams, *, n_modes: int | None = None) -> System:
+    """The builder's former name (:func:`build`), kept for existing scripts."""
+    return build(p, n_modes=n_modes)
+
+
+def observables(
+    p: RingMovingLoadParams | None = None,
+    *,
+    contact: bool = True,
+    mid: bool = True,
+    n_modes: int | None = None,
+) -> Observables:
+    """The radial ring displacement [m, inward positive] under load 1 (``contact1_radial``, with ``contact``)
+    and at :func:`mid_node` (``mid_node_radial``, with ``mid``), as :class:`pgtjax.Observables` of the system
+    :func:`build` returns for the same ``p`` and ``n_modes``: ``y = c(t) T q`` exactly at every saved time, in
+    SL and Monte Carlo alike. In a modal model the mean also includes the static correction ``c(t) R F_d(t)``
+    of the dropped modes (residual flexibility ``R = K^-1 - Phi_K Omega^-2 Phi_K^T``); their noise part is
+    neglected (its variance falls like ``1 / (lambda_K omega^4)``)."""
+    p = default_params() if p is None else p
+    _check_n_modes(p, n_modes)
+    if not (contact or mid):
+        raise ValueError("`contact` and `mid` cannot both be False: no output would be reported")
+    red = _reduction(p, n_modes)
+    rows = _OutputRows(
+        MovingLoads(p, ring_nodal_inverse(p.ring)), red.basis, 3 * mid_node(p.ring), contact, mid
+    )
+    offset = None if red.residual is None else _StaticCorrection(rows, red.residual)
+    names = [OBSERVER_NAME] * contact + [MID_NAME] * mid
+    return Observables(rows, names=names, units=["m"] * len(names), offset=offset)
 
 
 def static_initial_state(system: System, t0: float = 0.0):

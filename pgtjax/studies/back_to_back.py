@@ -39,11 +39,11 @@ import numpy as np
 
 from .. import params as _params
 from .. import plots
-from ..deterministic import simulate
-from ..modal import modal_analysis
+from .._deterministic import simulate
+from .._modal import modal_analysis
+from .._results import Trajectory, save_results
 from ..models import back_to_back as bb
 from ..models.mesh_stiffness import HARSHA_DEFLECTION_EXP
-from ..results import Trajectory, save_results
 
 PAPER_HS_SUN = (1.13e9, 1.234e9)  # N/m, mean Hertzian stiffness sun-planet 1, zone A -> end of run-up
 PAPER_HS_RING = (2.102e9, 2.243e9)  # N/m, ring-planet 1

@@ -20,11 +20,11 @@ import jax
 import numpy as np
 
 from .. import plots
-from ..linearization import solve_moments
-from ..modal import modal_analysis
+from .._linearization import solve_moments
+from .._modal import modal_analysis
+from .._montecarlo import monte_carlo
+from .._results import MomentResult, MonteCarloResult, save_results
 from ..models import gear_pair as gp
-from ..montecarlo import monte_carlo
-from ..results import MomentResult, MonteCarloResult, save_results
 
 QUANTITIES = (("y1", "m"), ("y2", "m"), ("z", "m"), ("delta", "m"))
 

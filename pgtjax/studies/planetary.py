@@ -24,14 +24,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import plots
-from ..deterministic import static_equilibrium
-from ..linearization import solve_moments
-from ..modal import modal_analysis
+from .._deterministic import static_equilibrium
+from .._linearization import solve_moments
+from .._modal import modal_analysis
+from .._montecarlo import monte_carlo
+from .._results import MomentResult, MonteCarloResult, save_results
+from .._system import Observables, check_count
 from ..models import planetary as pm
 from ..models.ring import ring_interpolation, ring_nodal_inverse
-from ..montecarlo import monte_carlo
-from ..results import MomentResult, MonteCarloResult, save_results
-from ..system import Observables, check_count
 
 # Thesis node 3 (1-based) is our 0-based ring node 2.
 FIGURE_DOFS = (("ring_node2_tangential", "m"), ("sun_u", "m"), ("carrier_u", "m"), ("planet1_eta", "m"))

@@ -54,7 +54,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import plots
-from ..linearization import solve_moments
+from .._linearization import solve_moments
+from .._montecarlo import monte_carlo
+from .._results import MomentResult, MonteCarloResult, save_results
 from ..models import ring_moving_load as rml
 from ..models.ring import (
     RingParams,
@@ -64,8 +66,6 @@ from ..models.ring import (
     ring_matrices,
     ring_natural_frequencies,
 )
-from ..montecarlo import monte_carlo
-from ..results import MomentResult, MonteCarloResult, save_results
 
 #: thesis Sec. 6.4.1: critical speeds read from Fig. 6.7 [rad/s]
 THESIS_CRITICAL_SPEEDS = (31.3, 34.19, 36.6, 40.55, 44.0)
@@ -101,10 +101,19 @@ def run_response(
 ) -> tuple[MomentResult, MonteCarloResult | None]:
     """Moments (and optionally MC) of the contact point and the mid-node over ``revolutions`` (times >= 0
     cover the window; earlier saved times are the warm-up). ``dt`` [s] is rounded down to fit the window."""
-    system = rml.ring_moving_load_system(p, observe_mid=True, n_modes=n_modes)
+    system = rml.build(p, n_modes=n_modes)
+    outputs = rml.observables(p, n_modes=n_modes)
     t0, h, n, every = _grid(p, revolutions, dt, n_saves)
     u0, v0 = rml.static_initial_state(system, t0)
-    kw = dict(t0=t0, dt=h, n_steps=n, save_every=every, initial_displacement=u0, initial_velocity=v0)
+    kw = dict(
+        t0=t0,
+        dt=h,
+        n_steps=n,
+        save_every=every,
+        initial_displacement=u0,
+        initial_velocity=v0,
+        observables=outputs,
+    )
     sl = solve_moments(system, **kw)
     mc = None
     if n_samples:
@@ -124,8 +133,8 @@ def point_series(result, which: str):
     name = {"contact": rml.OBSERVER_NAME, "mid": rml.MID_NAME}[which]
     t = np.asarray(result.times)
     keep = t >= -1e-12
-    j = result.dof(name)
-    return t[keep], np.asarray(result.mean_u[keep, j]), np.asarray(result.std_u[keep, j])
+    j = result.observable(name)
+    return t[keep], np.asarray(result.mean_obs[keep, j]), np.asarray(result.std_obs[keep, j])
 
 
 def sweep(
@@ -154,7 +163,7 @@ def sweep(
 
     def one(w):
         q = p.replace(carrier_speed=w)
-        system = rml.ring_moving_load_system(q, observe_contact=False, observe_mid=True, n_modes=n_modes)
+        system = rml.build(q, n_modes=n_modes)
         period = 2.0 * jnp.pi / (3.0 * w)
         t0 = -0.5 * period
         u0, v0 = rml.static_initial_state(system, t0)
@@ -167,12 +176,12 @@ def sweep(
             initial_displacement=u0,
             initial_velocity=v0,
             throw=False,
+            observables=rml.observables(q, contact=False, n_modes=n_modes),
         )
-        j = r.dof(rml.MID_NAME)
         late = r.times >= -1e-9 * period
         return (
-            jnp.max(jnp.where(late, jnp.abs(r.mean_u[:, j]), 0.0)),
-            jnp.max(jnp.where(late, r.std_u[:, j], 0.0)),
+            jnp.max(jnp.where(late, jnp.abs(r.mean_obs[:, 0]), 0.0)),
+            jnp.max(jnp.where(late, r.std_obs[:, 0], 0.0)),
         )
 
     means, stds = [], []
@@ -537,9 +546,9 @@ def _summary(study: RingMovingLoadStudy) -> dict:
     if mc is not None:
         z = []
         for name in (rml.OBSERVER_NAME, rml.MID_NAME):
-            j = sl.dof(name)
-            se_m, se_s = mc.standard_error("u")
-            sd = np.asarray(mc.std_u[:, j])
+            j = sl.observable(name)
+            se_m, se_s = mc.standard_error("obs")
+            sd = np.asarray(mc.std_obs[:, j])
             # skip times where the spread is still ~0 (start of the run): the standard errors vanish there
             ok = (sd > 1e-3 * sd.max()) & (np.asarray(mc.times) >= 0.0)
             z.append(
@@ -547,12 +556,14 @@ def _summary(study: RingMovingLoadStudy) -> dict:
                     dof=name,
                     max_mean_z=float(
                         np.max(
-                            np.abs(np.asarray(mc.mean_u[ok, j] - sl.mean_u[ok, j])) / np.asarray(se_m[ok, j])
+                            np.abs(np.asarray(mc.mean_obs[ok, j] - sl.mean_obs[ok, j]))
+                            / np.asarray(se_m[ok, j])
                         )
                     ),
                     max_std_z=float(
                         np.max(
-                            np.abs(np.asarray(mc.std_u[ok, j] - sl.std_u[ok, j])) / np.asarray(se_s[ok, j])
+                            np.abs(np.asarray(mc.std_obs[ok, j] - sl.std_obs[ok, j]))
+                            / np.asarray(se_s[ok, j])
                         )
                     ),
                 )

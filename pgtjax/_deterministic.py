@@ -1,5 +1,5 @@
 """Deterministic response: average-acceleration Newmark (beta = 1/4, gamma = 1/2) with the contact forces
-solved implicitly by Newton's method at every step (the noise-free case of :mod:`pgtjax.newmark`; the
+solved implicitly by Newton's method at every step (the noise-free case of :mod:`pgtjax._newmark`; the
 paper's Eqs. 34-42 are the same scheme written with a full Newton-Raphson on all DOFs, which we reduce to a
 solve in contact space because the contacts are the only nonlinearity)."""
 
@@ -14,9 +14,9 @@ import jax.numpy as jnp
 
 from ._failure import SolverError, error_if_nonfinite, is_concrete, raise_if_nonfinite
 from ._loop import saved_scan
-from .newmark import AbstractIntegrator, initial_sample_state, resolve_integrator, sample_step, snapshot
-from .results import Trajectory
-from .system import System, check_count, initial_state, validate_system, validate_time_grid
+from ._newmark import AbstractIntegrator, initial_sample_state, resolve_integrator, sample_step, snapshot
+from ._results import Trajectory
+from ._system import System, check_count, initial_state, validate_system, validate_time_grid
 
 
 def simulate(

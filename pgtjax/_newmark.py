@@ -37,7 +37,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from .system import System, at_time
+from ._system import System, at_time
 
 
 def effective_stiffness(mass, damping, stiffness, h):

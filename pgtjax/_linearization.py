@@ -2,9 +2,9 @@
 
 At every step each contact force is replaced by ``k_e (delta - mu) + f_0`` (thesis Eq. 3.33 / 4.25), whose
 coefficients depend on the mean ``mu`` and standard deviation ``sigma`` of the deflection at the *end* of the
-step (thesis Eqs. 3.39-3.42, or ch. 4's energy criterion; see :mod:`pgtjax.contact`). The linearized system
+step (thesis Eqs. 3.39-3.42, or ch. 4's energy criterion; see :mod:`pgtjax._contact`). The linearized system
 ``M q'' + C q' + (K + G diag(k_e) G^T) q = F - G (f_0 - k_e mu) + B w`` (Eq. 3.43 / 4.51) is advanced one step
-with the stochastic Newmark scheme (:mod:`pgtjax.newmark`, Eqs. 3.45-3.51 / 4.52-4.60).
+with the stochastic Newmark scheme (:mod:`pgtjax._newmark`, Eqs. 3.45-3.51 / 4.52-4.60).
 
 Instead of the raw second moment ``R = <Y Y^T>`` with cross terms (Eqs. 3.52-3.53, 4.61-4.62) we propagate
 the mean and the covariance separately (equivalent, better conditioned):
@@ -28,6 +28,7 @@ than recomputed.
 from __future__ import annotations
 
 import numbers
+from collections.abc import Sequence
 from typing import NamedTuple
 
 import equinox as eqx
@@ -36,19 +37,26 @@ import jax.numpy as jnp
 import numpy as np
 from jax.ad_checkpoint import checkpoint_name
 
+from ._contact import AbstractCriterion, Linearization, as_criterion
 from ._failure import SolverError, error_if_nonfinite, is_concrete, raise_if_nonfinite
 from ._loop import saved_scan
-from ._numerics import safe_sqrt
-from .contact import AbstractCriterion, Linearization, as_criterion
-from .newmark import (
+from ._newmark import (
     AbstractIntegrator,
     ConstantPropagator,
     Snapshot,
     resolve_integrator,
     snapshot,
 )
-from .results import MomentResult
-from .system import Observables, System, initial_state, validate_system, validate_time_grid
+from ._numerics import safe_sqrt
+from ._results import MomentResult
+from ._system import (
+    Observables,
+    System,
+    covariance_index,
+    initial_state,
+    validate_system,
+    validate_time_grid,
+)
 
 _FIXED_POINT_NAME = "sl_fixed_point"
 _DENSE_PHI_MAX_DOF = 16  # below this size the covariance update forms Phi explicitly (overhead-bound regime)
@@ -371,14 +379,17 @@ class _Saved(NamedTuple):
     iterations: jax.Array
     residual: jax.Array
     converged: jax.Array
+    covariance: jax.Array  # (2m, 2m) of the selected (u, v), m = len(covariance_dofs)
 
 
-def _record(system, carry: _Carry, info: _FixedPointInfo, t, observables) -> _Saved:
+def _record(system, carry: _Carry, info: _FixedPointInfo, t, observables, cov_index=()) -> _Saved:
     nc = system.n_contacts
     n = system.n_dof
     if observables is not None:
         c = observables(t)
-        obs_mean = c @ carry.mean[:n]
+        obs_mean = (
+            c @ carry.mean[:n] if observables.offset is None else c @ carry.mean[:n] + observables.shift(t)
+        )
         obs_std = safe_sqrt(jnp.sum((c @ carry.cov[:n, :n]) * c, axis=1))
     else:
         obs_mean = obs_std = jnp.zeros((0,))
@@ -402,6 +413,7 @@ def _record(system, carry: _Carry, info: _FixedPointInfo, t, observables) -> _Sa
         info.iterations,
         info.residual,
         info.converged,
+        carry.cov[np.ix_(cov_index, cov_index)] if cov_index else jnp.zeros((0, 0)),
     )
 
 
@@ -575,6 +587,7 @@ def solve_moments(
     throw: bool = True,
     checkpoint: bool = True,
     observables: Observables | None = None,
+    covariance_dofs: Sequence[str] | str | None = None,
 ) -> MomentResult:
     """Mean and standard deviation of every DOF, contact deflection and contact force by SL + stochastic
     Newmark (thesis Eqs. 3.43-3.53, 4.51-4.63).
@@ -604,8 +617,13 @@ def solve_moments(
             (``benchmarks/bench_planetary.py`` times both).
         observables: optional :class:`pgtjax.Observables` ``y = C(t) u`` whose mean and standard deviation
             are reported (``mean_obs``, ``std_obs``).
+        covariance_dofs: DOF names (or ``"all"``) whose joint covariance of displacements and velocities is
+            saved, ``result.covariance`` (n_times, 2m, 2m) ordered ``(u_1..u_m, v_1..v_m)``, with the blocks
+            ``cov_uu``, ``cov_uv``, ``cov_vv`` (m, 2m and m^2 numbers per saved time, so select what you need
+            for a large model).
     """
     validate_system(system, t0)
+    cov_index = covariance_index(system, covariance_dofs)
     n_steps, save_every = validate_time_grid(dt, n_steps, save_every)
     criterion = as_criterion(criterion)
     integrator = resolve_integrator(integrator, noise_scheme)
@@ -639,6 +657,7 @@ def solve_moments(
         max_iter=max_iter,
         checkpoint=checkpoint,
         observables=observables,
+        cov_index=cov_index,
     )
     return _checked(result) if throw else result
 
@@ -689,6 +708,7 @@ def _solve_moments_jit(
     max_iter,
     checkpoint,
     observables,
+    cov_index,
 ):
     mean0 = jnp.concatenate([u0, v0])
     # K and C constant: the contact-free step operators are formed once per run (and differentiated once)
@@ -698,7 +718,7 @@ def _solve_moments_jit(
     z0 = _contact_state(system, s0, mean0, p0)
     carry = _Carry(mean0, p0, s0, z0, _linearize_contacts(system, s0, z0, criterion))
     no_iterations = _FixedPointInfo(jnp.array(0), jnp.array(0.0), jnp.array(True))
-    first = _record(system, carry, no_iterations, t0, observables)
+    first = _record(system, carry, no_iterations, t0, observables, cov_index)
     n_blocks = n_steps // save_every
     lu_const = None
     if prop is not None and not constant_path:
@@ -716,11 +736,18 @@ def _solve_moments_jit(
 
     def record(c, infos, block_index):
         worst = _FixedPointInfo(jnp.max(infos.iterations), jnp.max(infos.residual), jnp.all(infos.converged))
-        return _record(system, c, worst, t0 + dt * (block_index + 1) * save_every, observables)
+        return _record(system, c, worst, t0 + dt * (block_index + 1) * save_every, observables, cov_index)
 
     policy = jax.checkpoint_policies.save_only_these_names(_FIXED_POINT_NAME) if checkpoint else None
     _, saved = saved_scan(
         step, record, carry, first, n_blocks=n_blocks, save_every=save_every, remat_policy=policy
     )
     times = t0 + dt * save_every * jnp.arange(n_blocks + 1, dtype=jnp.float64)
-    return MomentResult.from_saved(system, times, saved, criterion=criterion.name, observables=observables)
+    return MomentResult.from_saved(
+        system,
+        times,
+        saved,
+        criterion=criterion.name,
+        observables=observables,
+        covariance_dofs=tuple(system.dof_names[i] for i in cov_index[: len(cov_index) // 2]),
+    )

@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._numerics import safe_sqrt
-from .system import System, at_time, validate_system
+from ._system import System, at_time, validate_system
 
 
 class Modes(NamedTuple):

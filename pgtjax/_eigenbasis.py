@@ -1,6 +1,6 @@
 """The Monte Carlo step of a system with constant K and C, in the real eigenbasis of its contact-free map.
 
-With K and C constant, the contact-free part of a Newmark step (:mod:`pgtjax.newmark`) is one fixed linear
+With K and C constant, the contact-free part of a Newmark step (:mod:`pgtjax._newmark`) is one fixed linear
 map of the state x = (u, v). In the scaled state ``x~ = (u, (h/2) v)`` (u and (h/2) v in the same units,
 so that neither half of the state dominates the basis's rounding) one step reads
 
@@ -39,7 +39,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .newmark import (
+from ._newmark import (
     AbstractIntegrator,
     Snapshot,
     effective_stiffness,
@@ -47,7 +47,7 @@ from .newmark import (
     from_velocity,
     solve_contact_forces,
 )
-from .system import System
+from ._system import System
 
 MAX_MAP_ERROR = 1e-10  # relative error of W Lambda W^-1 x against T x accepted on random states x
 MAX_CONDITION = 1e8  # cond(W) beyond this is refused whatever the test states show
@@ -180,7 +180,7 @@ def eigen_sample_step(
     draws,
     integrator: AbstractIntegrator,
 ):
-    """:func:`pgtjax.newmark.sample_step` in eigen-coordinates (module docstring); same arguments, with the
+    """:func:`pgtjax._newmark.sample_step` in eigen-coordinates (module docstring); same arguments, with the
     step ``prop.h``. Returns the new state and the per-sample contact-solve flag.
 
     With ``z0 = y0 - f0 Q0^T`` the contact-free update ``Lambda z0 + inputs - f0 Q0^T`` is

@@ -20,10 +20,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._eigenbasis import eigen_initial_state, eigen_physical, eigen_propagator, eigen_sample_step
 from ._failure import SolverError, raise_if_nonfinite
 from ._loop import saved_scan
-from .eigenbasis import eigen_initial_state, eigen_physical, eigen_propagator, eigen_sample_step
-from .newmark import (
+from ._newmark import (
     AbstractIntegrator,
     Newmark,
     NewmarkBridge,
@@ -32,8 +32,16 @@ from .newmark import (
     sample_step,
     snapshot,
 )
-from .results import MonteCarloResult
-from .system import Observables, System, check_count, initial_state, validate_system, validate_time_grid
+from ._results import MonteCarloResult
+from ._system import (
+    Observables,
+    System,
+    check_count,
+    covariance_index,
+    initial_state,
+    validate_system,
+    validate_time_grid,
+)
 
 
 def _progress_bar(total: int, enabled: bool):
@@ -81,6 +89,7 @@ def _chunk(
     save_every,
     integrator,
     hist_columns,
+    cov_columns=(),
 ):
     n_batch = sample_ids.shape[0]
     nd = integrator.noise_dimension(system)
@@ -104,7 +113,7 @@ def _chunk(
 
         def physical(state, snap):
             return state.u, state.v
-    else:  # eigen-coordinates of the contact-free map (pgtjax.eigenbasis), physical only at saved times
+    else:  # eigen-coordinates of the contact-free map (pgtjax._eigenbasis), physical only at saved times
         state = eigen_initial_state(eigen, state.u, state.v, state.force, s0)
 
         def step(state, snap0, snap1, draws):
@@ -118,7 +127,8 @@ def _chunk(
         delta = u @ snap.direction
         parts = [u, v, delta, state.force]
         if observables is not None:
-            parts.append(u @ observables(t).T)
+            y = u @ observables(t).T
+            parts.append(y if observables.offset is None else y + observables.shift(t)[None, :])
         q = jnp.concatenate(parts, axis=1)
         mean = weights @ q / total
         m2 = weights @ (q - mean[None, :]) ** 2
@@ -131,7 +141,12 @@ def _chunk(
             idx = jnp.clip(idx, 0, edges.shape[0] - 2)
             counts.append(jnp.zeros(edges.shape[0] - 1).at[idx].add(weights * inside))
         counts = jnp.stack(counts) if counts else jnp.zeros((0, 0))
-        return mean, m2, loss, counts
+        if cov_columns:  # centred sums of cross products of the selected (u, v) columns
+            centred = q[:, cov_columns] - mean[jnp.asarray(cov_columns)][None, :]
+            comoment = (weights[:, None] * centred).T @ centred
+        else:
+            comoment = jnp.zeros((0, 0))
+        return mean, m2, loss, counts, comoment
 
     def block_draws(block_index):
         # One RNG call per sample and saved block (not per step): the draws of sample s in block j are
@@ -188,6 +203,7 @@ def monte_carlo(
     progress: bool = True,
     propagation: str = "auto",
     throw: bool = True,
+    covariance_dofs: Sequence[str] | str | None = None,
 ) -> MonteCarloResult:
     """Monte Carlo statistics of the nonlinear system driven by sampled white noise.
 
@@ -202,9 +218,11 @@ def monte_carlo(
         histogram_times: times (s) at which the histograms are reported (nearest saved time).
         progress: show a progress bar over chunks.
         propagation: coordinates the samples are stepped in. ``"eigen"``: the real eigenbasis of the
-            contact-free Newmark map (:mod:`pgtjax.eigenbasis`; constant K and C only), O(n (nc + n_draws))
+            contact-free Newmark map (:mod:`pgtjax._eigenbasis`; constant K and C only), O(n (nc + n_draws))
             per sample and step instead of O(n^2), the same scheme to rounding; ``"physical"``: the DOFs themselves;
             ``"auto"`` (default): eigen where the basis is accepted, else physical.
+        covariance_dofs: as in :func:`pgtjax.solve_moments`: the sample covariance (1/(N-1)) of the selected
+            DOFs' displacements and velocities, ``result.covariance`` (n_times, 2m, 2m).
         throw: raise :class:`pgtjax.SolverError` naming the first time and quantity where a statistic is not
             finite, or if a contact solve did not converge; with ``False`` the result is returned as it is
             (``unconverged`` counts the failed solves).
@@ -256,13 +274,14 @@ def monte_carlo(
     chunk = min(chunk_size, n_samples)
     n_chunks = -(-n_samples // chunk)
     total_n = 0.0
-    mean = m2 = loss = counts = None
+    mean = m2 = loss = counts = comoment = None
+    cov_columns = covariance_index(system, covariance_dofs)  # u then v: the columns of q, too
     bad = 0.0
     bar = _progress_bar(n_samples, progress)
     for c in range(n_chunks):
         ids = np.arange(c * chunk, (c + 1) * chunk)
         weights = (ids < n_samples).astype(np.float64)
-        (m_c, m2_c, loss_c, counts_c), bad_c = _chunk(
+        (m_c, m2_c, loss_c, counts_c, co_c), bad_c = _chunk(
             system,
             key,
             jnp.asarray(ids),
@@ -279,13 +298,19 @@ def monte_carlo(
             save_every=save_every,
             integrator=integrator,
             hist_columns=tuple(hist_columns),
+            cov_columns=cov_columns,
         )
         n_c = float(weights.sum())
         m_c, m2_c = np.asarray(m_c), np.asarray(m2_c)
+        co_c = np.asarray(co_c)
         if mean is None:
-            mean, m2, loss, counts = m_c, m2_c, np.asarray(loss_c), np.asarray(counts_c)
-        else:  # Chan et al. parallel combination of means and centred sums of squares
+            mean, m2, loss, counts, comoment = m_c, m2_c, np.asarray(loss_c), np.asarray(counts_c), co_c
+        else:  # Chan et al. parallel combination of means and centred sums of squares (and of products)
             delta = m_c - mean
+            d_sel = delta[:, list(cov_columns)]
+            comoment = (
+                comoment + co_c + np.einsum("ti,tj->tij", d_sel, d_sel) * (total_n * n_c / (total_n + n_c))
+            )
             mean = mean + delta * (n_c / (total_n + n_c))
             m2 = m2 + m2_c + delta**2 * (total_n * n_c / (total_n + n_c))
             loss = loss + np.asarray(loss_c)
@@ -334,4 +359,6 @@ def monte_carlo(
         std_obs=jnp.asarray(sd_o),
         observable_names=() if observables is None else observables.names,
         propagation="physical" if eigen is None else "eigen",
+        covariance=jnp.asarray(comoment / (total_n - 1.0)),
+        covariance_dofs=tuple(system.dof_names[i] for i in cov_columns[: len(cov_columns) // 2]),
     )

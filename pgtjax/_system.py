@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .contact import Backlash, ContactLaw
+from ._contact import Backlash, ContactLaw
 
 ArrayOrFunction = jax.Array | Callable
 
@@ -71,20 +71,31 @@ class FourierSeries(eqx.Module):
 
 
 class Observables(eqx.Module):
-    """Linear outputs ``y = C(t) u`` of the displacements whose moments the solvers report (e.g. the ring
-    displacement at a moving contact point). ``matrix``: (n_obs, n_dof) array or ``t -> array``."""
+    """Linear outputs ``y = C(t) u + d(t)`` of the displacements whose moments the solvers report (e.g. the
+    ring displacement at a moving contact point). ``matrix``: (n_obs, n_dof) array or ``t -> array``;
+    ``offset``: optional deterministic part d, (n_obs,) array or ``t -> array`` (a static correction, say),
+    which moves the mean only."""
 
     matrix: ArrayOrFunction
+    offset: ArrayOrFunction | None
     names: tuple[str, ...] = eqx.field(static=True)
     units: tuple[str, ...] = eqx.field(static=True)
 
-    def __init__(self, matrix, names: Sequence[str], units: Sequence[str] | None = None):
+    def __init__(self, matrix, names: Sequence[str], units: Sequence[str] | None = None, offset=None):
         self.matrix = matrix if callable(matrix) else jnp.asarray(matrix, dtype=jnp.float64)
+        self.offset = offset if (offset is None or callable(offset)) else jnp.asarray(offset, jnp.float64)
         self.names = tuple(names)
         self.units = tuple(units) if units is not None else ("m",) * len(self.names)
 
     def __call__(self, t):
+        """C(t), (n_obs, n_dof)."""
         return at_time(self.matrix, t)
+
+    def shift(self, t):
+        """d(t), (n_obs,) (zeros without an offset)."""
+        if self.offset is None:
+            return jnp.zeros((len(self.names),))
+        return at_time(self.offset, t)
 
 
 class Contacts(eqx.Module):
@@ -323,6 +334,26 @@ def check_count(name: str, value, minimum: int = 1) -> int:
     if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < minimum:
         raise ValueError(f"`{name}` must be an integer >= {minimum}, got {value!r}")
     return int(value)
+
+
+def covariance_index(system: System, dofs) -> tuple[int, ...]:
+    """State indices ``(u_d..., v_d...)`` of the DOFs named in ``dofs`` (a sequence of names, ``"all"`` or
+    ``None`` for none), for the solvers' ``covariance_dofs``; ``ValueError`` naming an unknown or repeated
+    DOF."""
+    if dofs is None:
+        return ()
+    if isinstance(dofs, str):
+        if dofs != "all":
+            raise ValueError(f"`covariance_dofs` must be a sequence of DOF names or 'all', got {dofs!r}")
+        dofs = system.dof_names
+    names = list(dofs)
+    for name in names:
+        if name not in system.dof_names:
+            raise ValueError(f"`covariance_dofs`: unknown DOF {name!r}; known: {', '.join(system.dof_names)}")
+    if len(set(names)) != len(names):
+        raise ValueError(f"`covariance_dofs` names a DOF twice: {names}")
+    idx = [system.dof_names.index(name) for name in names]
+    return tuple(idx + [system.n_dof + i for i in idx])
 
 
 def validate_time_grid(dt, n_steps, save_every: int = 1) -> tuple[int, int]:

@@ -8,6 +8,8 @@ the result's fields and whose ``__meta__`` entry is JSON (class, labels, units, 
 from __future__ import annotations
 
 import json
+import os
+import zipfile
 from pathlib import Path
 from typing import NamedTuple
 
@@ -17,13 +19,44 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._numerics import safe_sqrt
+from ._typing import Array, Bool, Float64, Int, typechecked
 
 
 class _Labelled(eqx.Module):
-    times: jax.Array
+    times: Float64[Array, " n_times"]
     dof_names: tuple[str, ...] = eqx.field(static=True)
     dof_units: tuple[str, ...] = eqx.field(static=True)
     contact_names: tuple[str, ...] = eqx.field(static=True)
+
+
+class _Covariance(eqx.Module):
+    """The joint covariance of the displacements and velocities of ``covariance_dofs`` (the solvers'
+    option of that name): ``covariance`` (n_times, 2m, 2m) ordered ``(u_1..u_m, v_1..v_m)``."""
+
+    @property
+    def cov_uu(self) -> jax.Array:
+        """Displacement covariance (n_times, m, m) [m^2 or the DOFs' units squared]."""
+        m = len(self.covariance_dofs)
+        return self._covariance()[:, :m, :m]
+
+    @property
+    def cov_uv(self) -> jax.Array:
+        """Displacement-velocity covariance E[(u - mu_u)(v - mu_v)^T] (n_times, m, m)."""
+        m = len(self.covariance_dofs)
+        return self._covariance()[:, :m, m:]
+
+    @property
+    def cov_vv(self) -> jax.Array:
+        """Velocity covariance (n_times, m, m)."""
+        m = len(self.covariance_dofs)
+        return self._covariance()[:, m:, m:]
+
+    def _covariance(self) -> jax.Array:
+        if not self.covariance_dofs:
+            raise ValueError(
+                "no covariance was saved: pass `covariance_dofs` (DOF names or 'all') to the solver"
+            )
+        return self.covariance
 
     def observable(self, name: str) -> int:
         """Index of an observable (see :class:`pgtjax.Observables`) by name."""
@@ -46,7 +79,8 @@ class _Labelled(eqx.Module):
             raise ValueError(f"unknown contact {name!r}; known: {', '.join(self.contact_names)}") from None
 
 
-class MomentResult(_Labelled):
+@typechecked
+class MomentResult(_Labelled, _Covariance):
     """Mean and standard deviation from SL + the stochastic Newmark recursion.
 
     Shapes: ``(n_times, n_dof)`` for DOFs (displacement ``*_u``, velocity ``*_v``), ``(n_times, n_contacts)``
@@ -56,23 +90,25 @@ class MomentResult(_Labelled):
     ``residual`` (scaled) and ``converged`` report the per-step fixed point (worst step of each saved block).
     """
 
-    mean_u: jax.Array
-    std_u: jax.Array
-    mean_v: jax.Array
-    std_v: jax.Array
-    mean_delta: jax.Array
-    std_delta: jax.Array
-    force_mean: jax.Array
-    force_std: jax.Array
-    k_e: jax.Array
-    f_0: jax.Array
-    iterations: jax.Array
-    residual: jax.Array
-    converged: jax.Array
-    mean_obs: jax.Array
-    std_obs: jax.Array
+    mean_u: Float64[Array, "n_times n_dof"]
+    std_u: Float64[Array, "n_times n_dof"]
+    mean_v: Float64[Array, "n_times n_dof"]
+    std_v: Float64[Array, "n_times n_dof"]
+    mean_delta: Float64[Array, "n_times n_contacts"]
+    std_delta: Float64[Array, "n_times n_contacts"]
+    force_mean: Float64[Array, "n_times n_contacts"]
+    force_std: Float64[Array, "n_times n_contacts"]
+    k_e: Float64[Array, "n_times n_contacts"]
+    f_0: Float64[Array, "n_times n_contacts"]
+    iterations: Int[Array, " n_times"]
+    residual: Float64[Array, " n_times"]
+    converged: Bool[Array, " n_times"]
+    mean_obs: Float64[Array, "n_times n_obs"]
+    std_obs: Float64[Array, "n_times n_obs"]
     criterion: str = eqx.field(static=True)
     observable_names: tuple[str, ...] = eqx.field(static=True, default=())
+    covariance: Float64[Array, "n_times n_cov n_cov"] | None = None  # see covariance_dofs
+    covariance_dofs: tuple[str, ...] = eqx.field(static=True, default=())
 
     def contact_loss_probability(self, clearance) -> jax.Array:
         """P(|delta| < b) of each contact at each saved time under SL's Gaussian deflection, (n_times, nc), for
@@ -84,7 +120,7 @@ class MomentResult(_Labelled):
         return _gaussian_gap_probability(self.mean_delta, self.std_delta, b[None, :])
 
     @classmethod
-    def from_saved(cls, system, times, saved, *, criterion, observables=None):
+    def from_saved(cls, system, times, saved, *, criterion, observables=None, covariance_dofs=()):
         n, nc = system.n_dof, system.n_contacts
         sd = safe_sqrt(saved.var)
         return cls(
@@ -109,6 +145,8 @@ class MomentResult(_Labelled):
             std_obs=saved.obs_std,
             criterion=criterion,
             observable_names=() if observables is None else observables.names,
+            covariance=saved.covariance,
+            covariance_dofs=tuple(covariance_dofs),
         )
 
 
@@ -135,34 +173,37 @@ def _gaussian_gap_probability(mean, std, clearance):
     return jnp.where(positive, prob, inside)
 
 
-class MonteCarloResult(_Labelled):
+@typechecked
+class MonteCarloResult(_Labelled, _Covariance):
     """Sample statistics of the nonlinear system (Monte Carlo).
 
     ``mean_*``/``std_*`` as in :class:`MomentResult` (``std`` with the 1/(N-1) normalisation, thesis
     Eq. 4.66); ``histograms`` maps a quantity name to counts of shape ``(len(histogram_times), n_bins)`` over
     ``histogram_edges[name]``; ``unconverged`` counts (sample, step) pairs whose contact Newton solve did not
     reach its tolerance; ``propagation`` says whether the samples were stepped in physical or eigen-coordinates
-    (:mod:`pgtjax.eigenbasis`).
+    (:mod:`pgtjax._eigenbasis`).
     """
 
     n_samples: int = eqx.field(static=True)
-    mean_u: jax.Array
-    std_u: jax.Array
-    mean_v: jax.Array
-    std_v: jax.Array
-    mean_delta: jax.Array
-    std_delta: jax.Array
-    force_mean: jax.Array
-    force_std: jax.Array
-    histogram_times: jax.Array
+    mean_u: Float64[Array, "n_times n_dof"]
+    std_u: Float64[Array, "n_times n_dof"]
+    mean_v: Float64[Array, "n_times n_dof"]
+    std_v: Float64[Array, "n_times n_dof"]
+    mean_delta: Float64[Array, "n_times n_contacts"]
+    std_delta: Float64[Array, "n_times n_contacts"]
+    force_mean: Float64[Array, "n_times n_contacts"]
+    force_std: Float64[Array, "n_times n_contacts"]
+    histogram_times: Float64[Array, " n_hist"]
     histogram_edges: dict
     histograms: dict
-    contact_loss_probability: jax.Array
-    unconverged: jax.Array
-    mean_obs: jax.Array
-    std_obs: jax.Array
+    contact_loss_probability: Float64[Array, "n_times n_contacts"]
+    unconverged: Float64[Array, ""]
+    mean_obs: Float64[Array, "n_times n_obs"]
+    std_obs: Float64[Array, "n_times n_obs"]
     observable_names: tuple[str, ...] = eqx.field(static=True, default=())
     propagation: str = eqx.field(static=True, default="physical")  # coordinates the samples were stepped in
+    covariance: Float64[Array, "n_times n_cov n_cov"] | None = None  # 1/(N-1); see covariance_dofs
+    covariance_dofs: tuple[str, ...] = eqx.field(static=True, default=())
 
     def standard_error(self, what: str = "u"):
         """Standard errors (mean, std) of ``mean_<what>`` and ``std_<what>`` (``what`` = u, v, delta, obs)
@@ -223,15 +264,16 @@ class MonteCarloResult(_Labelled):
         return TimeAverage(out[0], out[1], out[2], out[3], window.size)
 
 
+@typechecked
 class Trajectory(_Labelled):
     """A deterministic response: displacement ``u``, velocity ``v`` (n_times, n_dof), contact deflection
     ``delta`` and force ``force`` (n_times, n_contacts)."""
 
-    u: jax.Array
-    v: jax.Array
-    delta: jax.Array
-    force: jax.Array
-    unconverged: jax.Array
+    u: Float64[Array, "n_times n_dof"]
+    v: Float64[Array, "n_times n_dof"]
+    delta: Float64[Array, "n_times n_contacts"]
+    force: Float64[Array, "n_times n_contacts"]
+    unconverged: Float64[Array, ""] | Int[Array, ""]  # failed steps
 
 
 def _to_numpy_dict(result) -> tuple[dict, dict]:
@@ -253,9 +295,18 @@ def save_results(path, result, **attributes) -> Path:
     """Write a result (any class of this module) to ``path`` (``.npz``) with its labels and units;
     ``attributes`` (JSON-serialisable: parameters, units of derived quantities...) are stored too."""
     path = Path(path)
+    if path.suffix != ".npz":  # numpy would append it; return the path that really exists
+        path = path.with_name(path.name + ".npz")
     arrays, meta = _to_numpy_dict(result)
     meta["attributes"] = attributes
-    np.savez_compressed(path, __meta__=np.array(json.dumps(meta)), **arrays)
+    # a temporary name in the same folder, renamed into place: a run killed while writing leaves the
+    # previous file (or none), never a truncated one under the final name
+    partial = path.with_name(f".{path.name}.partial-{os.getpid()}.npz")
+    try:
+        np.savez_compressed(partial, __meta__=np.array(json.dumps(meta)), **arrays)
+        os.replace(partial, path)
+    finally:
+        partial.unlink(missing_ok=True)
     return path
 
 
@@ -263,11 +314,21 @@ _CLASSES = {"MomentResult": MomentResult, "MonteCarloResult": MonteCarloResult, 
 
 
 def load_results(path):
-    """Inverse of :func:`save_results`: returns ``(result, attributes)``."""
-    with np.load(Path(path), allow_pickle=False) as data:
-        meta = json.loads(str(data["__meta__"]))
-        arrays = {k: data[k] for k in data.files if k != "__meta__"}
-    cls = _CLASSES[meta.pop("class")]
+    """Inverse of :func:`save_results`: returns ``(result, attributes)``; ``ValueError`` naming the file for
+    anything that is not a readable pgtjax result."""
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            meta = json.loads(str(data["__meta__"]))
+            arrays = {k: data[k] for k in data.files if k != "__meta__"}
+        cls = _CLASSES[meta.pop("class")]
+    except FileNotFoundError:
+        raise ValueError(f"result file {str(path)!r} does not exist") from None
+    except (OSError, ValueError, KeyError, TypeError, EOFError, zipfile.BadZipFile) as err:
+        raise ValueError(
+            f"{str(path)!r} is not a readable pgtjax result file (.npz written by save_results): "
+            f"{type(err).__name__}: {err}"
+        ) from None
     attributes = meta.pop("attributes", {})
     dict_fields = meta.pop("dicts", [])
     kwargs = {}

@@ -1,0 +1,83 @@
+"""Result files: atomic writes, the returned path, and clear errors for anything that is not a result."""
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+
+import numpy as np
+import pytest
+
+import pgtjax as pg
+
+
+def small_result():
+    system = pg.System(
+        mass=[[1.0]], stiffness=[[4.0]], damping=[[0.2]], noise_input=[[1.0]], spectral_density=1e-3
+    )
+    return pg.solve_moments(system, dt=1e-2, n_steps=20, save_every=10)
+
+
+def test_path_without_suffix_returns_the_file_written(tmp_path):
+    path = pg.save_results(tmp_path / "run", small_result())
+    assert path == tmp_path / "run.npz" and path.exists()
+    assert pg.load_results(path)[0].std_u.dtype == np.float64
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run.npz"]  # no temporary file left
+
+
+@pytest.mark.parametrize(
+    "content, what",
+    [
+        (b"", "empty"),
+        (b"PK\x03\x04 truncated zip", "truncated"),
+        (b"hello, not numpy", "foreign"),
+    ],
+)
+def test_unreadable_files_raise_value_error_naming_the_file(tmp_path, content, what):
+    bad = tmp_path / f"{what}.npz"
+    bad.write_bytes(content)
+    with pytest.raises(ValueError, match=f"{what}.npz"):
+        pg.load_results(bad)
+
+
+def test_foreign_npz_and_missing_file(tmp_path):
+    foreign = tmp_path / "foreign.npz"
+    np.savez(foreign, x=np.arange(3))
+    with pytest.raises(ValueError, match="foreign.npz.*not a readable pgtjax result"):
+        pg.load_results(foreign)
+    with pytest.raises(ValueError, match="missing.npz.*does not exist"):
+        pg.load_results(tmp_path / "missing.npz")
+    good = pg.save_results(tmp_path / "good.npz", small_result())
+    raw = good.read_bytes()
+    (tmp_path / "cut.npz").write_bytes(raw[: len(raw) // 2])
+    with pytest.raises(ValueError, match="cut.npz"):
+        pg.load_results(tmp_path / "cut.npz")
+
+
+def test_a_process_killed_while_overwriting_leaves_the_old_file_loadable(tmp_path):
+    target = tmp_path / "result.npz"
+    pg.save_results(target, small_result(), version="old")
+    script = textwrap.dedent(
+        f"""
+        import numpy as np, pgtjax as pg
+        # a large result (many saved times, a full covariance), written over and over
+        system = pg.System(mass=np.eye(40), stiffness=np.eye(40) * 4.0, damping=np.eye(40) * 0.2,
+                           noise_input=np.eye(40)[:, :1], spectral_density=1e-3)
+        res = pg.solve_moments(system, dt=1e-3, n_steps=4000, save_every=1, covariance_dofs="all")
+        print("ready", flush=True)
+        while True:
+            pg.save_results({str(target)!r}, res, version="new")
+        """
+    )
+    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
+    assert proc.stdout.readline().strip() == "ready"
+    for delay in (0.05, 0.13, 0.31):  # kill at a few points of the write cycle
+        time.sleep(delay)
+        _, attributes = pg.load_results(target)  # readable at any moment
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    result, attributes = pg.load_results(target)
+    assert attributes["version"] in ("old", "new") and result.std_u.dtype == np.float64
+    assert os.path.getsize(target) > 0
