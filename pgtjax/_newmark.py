@@ -9,7 +9,7 @@ Derivation (thesis Eqs. 3.45-3.51 / 4.52-4.60, rewritten in effective-stiffness 
 (thesis Eq. 3.47's two block rows; ``C_m = (C0 + C1)/2`` for a time-varying damping), with
 ``B_s = B diag(sqrt(2 pi S0))`` and ``N``, ``P`` independent standard normal vectors. ``N`` carries the
 Wiener increment over the step; ``P`` the Brownian-bridge part of its time integral, i.e. the
-``B dt sqrt(dt)/sqrt(12)`` term of Eq. 3.49/4.58 (ERRATA: the factor is ``sqrt(dt) B``, not ``sqrt(dt B)``).
+``B dt sqrt(dt)/sqrt(12)`` term of Eq. 3.49/4.58 (docs/corrections.md C2: the factor is ``sqrt(dt) B``, not ``sqrt(dt B)``).
 The damping term is integrated exactly (``int C u' dt = C (u1 - u0)``), as in Eq. 3.47. Eliminating ``v1``
 gives the classic effective-stiffness form
 
@@ -21,7 +21,7 @@ gives the classic effective-stiffness form
 Noise schemes (``noise_scheme``):
 - ``"newmark"``: the documents' scheme, with the bridge term ``P``. For a linear system with state matrix A
   and continuous stationary covariance P_c, its stationary covariance is ``P_c + h^2/12 A P_c A^T``: mode
-  variances are inflated by ``1 + (omega h)^2/12`` (ERRATA), which matters for stiff meshes.
+  variances are inflated by ``1 + (omega h)^2/12`` (C2), which matters for stiff meshes.
 - ``"trapezoidal"`` (default): drops ``P``. Its stationary covariance equals ``P_c`` exactly for any ``h``.
 
 Without noise this is the deterministic average-acceleration Newmark method (beta = 1/4, gamma = 1/2),

@@ -104,7 +104,7 @@ def test_mesh_phase_is_the_integral_of_the_mesh_frequency(params):
     )  # cumulative trapezoid, independent of the closed form
     cycles = np.asarray(jax.vmap(phase.cycles)(jnp.asarray(t)))
     assert np.max(np.abs(cycles - cycles_numeric)) < 1e-6
-    # mesh-frequency check of the ERRATA form of Eq. 2: f_m = Z_r Z_s / (Z_r + Z_s) f_sun
+    # mesh-frequency check of the corrected Eq. 2 (docs/corrections.md C12): f_m = Z_r Z_s / (Z_r + Z_s) f_sun
     assert math.isclose(bb.mesh_frequency(p, 2 * np.pi), 65 * 16 / 81, rel_tol=1e-14)
 
 

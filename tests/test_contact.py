@@ -106,7 +106,7 @@ def test_exact_cases():
         np.testing.assert_allclose(float(lin.f_0), K * 49 * B, rtol=1e-14)
         lin = LAW.linearize(jnp.array(0.0), jnp.array(0.01 * B), K, B, crit)
         assert float(lin.k_e) == 0.0 and float(lin.f_0) == 0.0
-    # The printed Eq. 4.43 overestimates k_e in permanent contact by (mu-b)^2/(3 sigma^2) (ERRATA).
+    # The printed Eq. 4.43 overestimates k_e in permanent contact by (mu-b)^2/(3 sigma^2) (docs/corrections.md C1).
     mu, sigma = 5 * B, 1 * B
     lin = LAW.linearize(jnp.array(mu), jnp.array(sigma), K, B, "energy_origin")
     force_ke = float(LAW.linearize(jnp.array(mu), jnp.array(sigma), K, B, "force").k_e)

@@ -80,7 +80,7 @@ def test_trapezoidal_scheme_is_exact_in_the_stationary_limit_and_documents_schem
         np.testing.assert_allclose(linalg.solve_discrete_lyapunov(t1, t3 @ t3.T), p_c, rtol=1e-8, atol=1e-12)
         t1, t3 = thesis_step_matrices(h, "newmark")
         p_d = linalg.solve_discrete_lyapunov(t1, t3 @ t3.T)
-        # ERRATA: exactly P_c + h^2/12 A P_c A^T
+        # docs/corrections.md C2: exactly P_c + h^2/12 A P_c A^T
         np.testing.assert_allclose(p_d, p_c + h**2 / 12 * a @ p_c @ a.T, rtol=1e-8, atol=1e-14)
         errors.append(np.linalg.norm(p_d - p_c) / np.linalg.norm(p_c))
     order = np.polyfit(np.log(steps), np.log(errors), 1)[0]

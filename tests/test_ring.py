@@ -74,7 +74,7 @@ def test_shape_functions_match_thesis_matrices():
     R, (A, I) = 0.2, _section(0.01)
     J = 1 + I / (A * R**2)
 
-    def H(t):  # Eq. 3.62 with ERRATA (-G3 cos in u_tau)
+    def H(t):  # Eq. 3.62 as corrected, docs/corrections.md C5 (-G3 cos in u_tau)
         c, s = math.cos(t), math.sin(t)
         return np.array(
             [

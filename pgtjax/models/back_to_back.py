@@ -2,7 +2,7 @@
 
 Source: Hammami et al., *Dynamic behavior of non-linear planetary gear model in non-stationary conditions*
 ("paper" below), section 4 (Eqs. 14-33), Tables 1 and 3, with the corrections of the printed equations
-stated where they are used ("ERRATA" below). The mesh stiffness (tooth bending, fillet foundation, Harsha/Hertz contact in
+stated where they are used (docs/corrections.md C11-C14). The mesh stiffness (tooth bending, fillet foundation, Harsha/Hertz contact in
 series, Eqs. 1-13) comes from :mod:`pgtjax.models.mesh_stiffness`; this module puts it on the twelve meshes of
 the bench and writes the equations of motion in the form every pgtjax solver takes (:class:`pgtjax.System`).
 
@@ -44,7 +44,7 @@ Sign of the deflection. Torque circulates in opposite senses through the two set
 planets, the reaction sun is driven by its planets. The contact direction of every reaction-set mesh is
 therefore reversed (``g -> -g``) so that ``delta > 0`` means "loaded flank in contact" in both sets.
 
-Mass (Eq. 17, ERRATA form ``I_c/r_c^2 + N m_p`` for a carrier coordinate ``r_c theta_c``) from the kinetic
+Mass (Eq. 17, corrected form C14 ``I_c/r_c^2 + N m_p`` for a carrier coordinate ``r_c theta_c``) from the kinetic
 energy ``T = 1/2 sum I_j theta_j'^2 + 1/2 N m_p (r_c theta_c')^2``: ``M = diag(I_j / r_bj^2)`` and for the
 carrier ``(I_c + N m_p r_c^2) / r_bc^2`` [kg]. Stiffness of the shafts (Eq. 18's ``K_c``) from the potential
 ``1/2 k_st (theta_sR - theta_sT)^2 + 1/2 k_ct (theta_cR - theta_cT)^2 + 1/2 k_rt theta_rT^2
@@ -60,7 +60,7 @@ stiffness ``k_m``. ``theta_m(t)`` is the exact integral of the piecewise-linear 
 so the train turns at the prescribed speed on average, the motor torque ``k_m (theta_m - theta_sR)`` is an
 output (it balances inertia and damping; it is 0 at constant speed without damping), and the mesh phase,
 which the engine needs as a function of time, is the same integral: ``c(t) = Z_r theta_c(t) / 2 pi`` with the
-rigid-body carrier angle ``theta_c = Z_s / (Z_s + Z_r) theta_m`` (ERRATA form of Eq. 2: ``f_m = Z_r f_c``). The
+rigid-body carrier angle ``theta_c = Z_s / (Z_s + Z_r) theta_m`` (corrected Eq. 2, C12: ``f_m = Z_r f_c``). The
 mesh period thus shortens as the speed rises because the phase advances faster. The circulating torque
 (the test-sun torque ``T``, set by the arm: ``C_r = -(Z_r / Z_s) T`` on the reaction ring) may ramp with the
 speed (the paper's abstract: "motor torque and external load variation are taken into account").
@@ -364,7 +364,7 @@ def carrier_ratio(p: BackToBackParams) -> float:
 
 
 def mesh_cycles_per_radian(p: BackToBackParams) -> float:
-    """Mesh cycles per radian of the motor (= sun) rotation: Z_r Z_s / ((Z_s + Z_r) 2 pi) (ERRATA Eq. 2)."""
+    """Mesh cycles per radian of the motor (= sun) rotation: Z_r Z_s / ((Z_s + Z_r) 2 pi) (corrected Eq. 2, C12)."""
     return p.z_ring * carrier_ratio(p) / (2.0 * math.pi)
 
 

@@ -1,7 +1,7 @@
 """Two-node thin curved-beam (circular arc) element for in-plane vibration of a ring.
 
 Sign conventions (those implied by the thesis shape functions, Eqs. 6.1-6.3 / 3.17-3.19 with the
-ERRATA correction of Eq. 3.18):
+correction of Eq. 3.18, docs/corrections.md C5):
 
 * the angle ``s`` runs counter-clockwise along the arc, measured from the element's first node;
 * ``u_r`` [m] is the radial displacement, **positive towards the ring centre** (inward).  This is
@@ -9,7 +9,7 @@ ERRATA correction of Eq. 3.18):
   (cos s, sin s)`` and ``(sin s, -cos s)``, are rigid translations of the arc;
 * ``u_tau`` [m] is the tangential displacement, positive in the direction of increasing ``s``;
 * ``u_theta`` [rad] is the rotation of the cross-section, positive counter-clockwise,
-  ``u_theta = (u_tau + du_r/ds) / R`` (ERRATA, Eq. 3.19).
+  ``u_theta = (u_tau + du_r/ds) / R`` (Eq. 3.19, C5).
 
 Node DOF order (Eq. 3.44 / 6.10): ``(u_r, u_tau, u_theta)`` of node 1, then of node 2.
 
@@ -30,7 +30,7 @@ classical thin-ring theory with membrane strain and bending strain
 is where the factor ``J`` comes from; ``G4``, ``G6`` are inextensional; ``G2``, ``G3``, ``G5`` are the
 rigid-body modes).  The element stiffness is therefore formed directly from ``U`` with the same
 shape functions (``k = B^-T [int S^T diag(EA, EI) S R ds] B^-1``), which replaces the printed
-matrix ``D`` of Eqs. 3.12/3.61, 5.1/5.3, 6.19/6.21 (see ERRATA: its 5th column loads a rigid rotation).
+matrix ``D`` of Eqs. 3.12/3.61, 5.1/5.3, 6.19/6.21 (correction C7: its 5th column loads a rigid rotation).
 The strain integrand is a trigonometric polynomial of degree 2 in ``s``; Gauss-Legendre quadrature
 with ``N_GAUSS`` points is exact to rounding for the arc angles used in practice.
 
@@ -40,7 +40,7 @@ both displacement components **and** the rotary inertia ``rho I u_theta_dot^2`` 
 
     T = 1/2 rho int (A u_r_dot^2 + A u_tau_dot^2 + I u_theta_dot^2) R ds
 
-Shape-function matrix: ``u = H(s) G``, ``u_nodes = B G`` so ``u = H(s) B^-1 u_nodes`` (ERRATA:
+Shape-function matrix: ``u = H(s) G``, ``u_nodes = B G`` so ``u = H(s) B^-1 u_nodes`` (correction C6:
 Eqs. 3.67 / 6.5 print ``H B^T``).  Internally the arc coordinate is centred on the element midpoint,
 which leaves the function space unchanged (it is invariant under a shift of ``s``) and keeps ``B``
 better conditioned.
@@ -91,7 +91,7 @@ def _basis(s, radius, jf):
 def shape_basis(s, radius, jf):
     """Matrix ``H(s)`` (3 x 6) of Eqs. 3.62 / 6.7: (u_r, u_tau, u_theta) = H(s) G.
 
-    ``s`` [rad] local angle, ``radius`` [m], ``jf`` = J (Eq. 6.8).  Row 2 follows ERRATA for Eq. 3.18
+    ``s`` [rad] local angle, ``radius`` [m], ``jf`` = J (Eq. 6.8).  Row 2 follows correction C5 of Eq. 3.18
     (``-G3 cos s``) and row 3 is ``(u_tau + u_r') / R`` [rad/m per unit G].
     """
     return _basis(s, radius, jf)[:3]
@@ -212,7 +212,7 @@ def nodal_inverse(angle, radius, area, second_moment):
 
 @jax.jit
 def element_shape_matrix(s, angle, radius, area, second_moment, inverse=None):
-    """Shape-function matrix ``N(s) = H(s) B^-1`` (3 x 6) (Eqs. 3.20, 6.4-6.5 with ERRATA).
+    """Shape-function matrix ``N(s) = H(s) B^-1`` (3 x 6) (Eqs. 3.20, 6.4-6.5 with corrections C5-C6).
 
     Args:
         s: local angle [rad] measured from node 1 of the element (0 <= s <= angle; values outside

@@ -3,7 +3,7 @@
 Coordinates ``q = (y1, y2, z)`` (m): bearing translations of the two gears along the line of action and the
 relative torsional displacement ``z = theta1 r1 - theta2 r2`` (Eq. 4.5-4.7). Mesh deflection
 ``delta = y1 - y2 + z`` (Eq. 4.10), so the contact direction is ``g = (1, -1, 1)``: the mesh force acts with
-signs ``{+f, -f, +f}`` on the three equations (ERRATA: the printed ``F_int = {f f f}`` of Eq. 4.16 drops the
+signs ``{+f, -f, +f}`` on the three equations (docs/corrections.md C3: the printed ``F_int = {f f f}`` of Eq. 4.16 drops the
 sign that Eqs. 4.5-4.7 and 4.28 carry). ``M = diag(m1, m2, m_c)`` with the equivalent mass
 ``m_c = I1 I2 / (I2 r1^2 + I1 r2^2)`` (Eq. 4.8; the printed ``diag(m m m_c)`` of Eq. 4.13 means this).
 

@@ -2,7 +2,7 @@
 
 Source: Hammami et al., *Dynamic behavior of non-linear planetary gear model in non-stationary
 conditions*, section 3 and Table 1, Eqs. 1-13, with the corrections of the printed equations stated where
-they are used ("ERRATA" below). Mesh phasing follows Parker & Lin (2004), *Mesh phasing
+they are used (docs/corrections.md C11-C13). Mesh phasing follows Parker & Lin (2004), *Mesh phasing
 relationships in planetary and epicyclic gears*, J. Mech. Des. 126:365-370.
 
 Model, per tooth pair in contact (all quantities SI: m, N, Pa, rad, unless stated):
@@ -11,13 +11,13 @@ Model, per tooth pair in contact (all quantities SI: m, N, Pa, rad, unless state
   Eqs. 3-7), obtained from the strain energy of a beam loaded at the point where the line of action
   crosses the tooth centre line;
 * fillet-foundation (gear body) flexibility of each tooth (Sainsot et al. 2004; paper Eqs. 8-10,
-  polynomial fit of Eq. 9 as corrected in ERRATA);
+  polynomial fit of Eq. 9 as corrected (C13));
 * nonlinear Hertzian line contact, the Palmgren/Harsha power law (paper Eqs. 11-13). The fit is
   stated in millimetres and newtons: ``F[N] = 56065.703 l[mm]^0.92 delta[mm]^1.08``. Because
   ``0.92 + 1.08 = 2`` the SI form is ``F = 5.6065703e10 N/m^2 * l^0.92 delta^1.08`` with l, delta in
   metres. Eq. 11 is the inverse of Eq. 12 to within the rounding of its exponents (1/0.925 = 1.081,
   0.85/0.925 = 0.919); pgtjax uses Eq. 12 as *the* force law and inverts it exactly;
-* the five flexibilities in series (Eq. 1 as corrected in ERRATA).
+* the five flexibilities in series (Eq. 1, correction C11).
 
 Pairs in contact carry the same mesh deflection (rigid-body transmission error, no profile errors),
 so the mesh stiffness is the sum over pairs and the load shares itself by stiffness.
@@ -123,7 +123,7 @@ __all__ = [
 # Constants
 # --------------------------------------------------------------------------------------------
 
-#: Sainsot et al. (2004) fit, paper Eq. 9 (ERRATA form); rows L*, M*, P*, Q*; columns A..F of
+#: Sainsot et al. (2004) fit, paper Eq. 9 (correction C13); rows L*, M*, P*, Q*; columns A..F of
 #: ``X* = A/theta_f^2 + B h_f^2 + C h_f/theta_f + D/theta_f + E h_f + F`` (theta_f in rad).
 SAINSOT_COEFFS = np.array(
     [
@@ -496,7 +496,7 @@ def _tooth_bending_compliance(mesh: SpurMesh, gear: _Gear, r) -> Array:
 
 @jax.jit
 def sainsot_coefficients(hub_ratio, theta_f) -> Array:
-    """(L*, M*, P*, Q*) of Sainsot et al. 2004 (paper Eq. 9, ERRATA form); theta_f in rad. Shape (4,)."""
+    """(L*, M*, P*, Q*) of Sainsot et al. 2004 (paper Eq. 9, correction C13); theta_f in rad. Shape (4,)."""
     basis = jnp.stack(
         [
             1.0 / theta_f**2,
@@ -887,7 +887,7 @@ def sun_ring_phase(sun_mesh: SpurMesh, ring_mesh: SpurMesh) -> Array:
 
 
 def mesh_frequency(z_sun: int, z_ring: int, *, carrier_freq=None, sun_freq=None, ring_freq=0.0) -> Array:
-    """Mesh frequency [Hz] of a planetary stage (ERRATA form of Eq. 2).
+    """Mesh frequency [Hz] of a planetary stage (Eq. 2, correction C12).
 
     f_m = Z_r (f_c - f_r) = Z_s (f_s - f_c). With a fixed ring, f_m = Z_r f_c = Z_r Z_s/(Z_r + Z_s) f_s.
     Give ``carrier_freq`` or ``sun_freq`` [Hz] (arrays allowed); ``ring_freq`` defaults to 0 (fixed ring).

@@ -8,7 +8,7 @@ the base radius (sun, planets, rigid ring) or the carrier radius; all rotations 
 The lumped bodies live in the frame turning with the carrier (gyroscopic terms neglected, omega_c = 0.23
 rad/s); the elastic ring is fixed in the ground frame, so the planets' meshes move around it.
 
-Derive, don't transcribe (ERRATA on Eqs. 3.9-3.11, 3.16, 3.25-3.26, App. 3.A.3): every spring's deflection
+Derive, don't transcribe (docs/corrections.md C4, on Eqs. 3.9-3.11, 3.16, 3.25-3.26, App. 3.A.3): every spring's deflection
 is written once as ``delta = g^T q`` from vector geometry, and ``K = sum k g g^T`` (symmetric by
 construction). In the local basis of planet n (``e_r`` outward through its centre at angle ``psi_n``,
 ``e_t`` counter-clockwise):

@@ -18,7 +18,7 @@ Supports (bolts, Eq. 6.24): at each node of ``support_nodes`` three grounded spr
 ``k_r`` [N/m], ``k_tau`` [N/m], ``k_theta`` [N m/rad] on that node's three DOFs (``k_theta = 0`` is a
 pin).
 
-Model II tooth masses (Ch. 5, Eqs. 5.10-5.12, 5.16-5.18; ERRATA: Eq. 5.14 garbled): tooth ``j``
+Model II tooth masses (Ch. 5, Eqs. 5.10-5.12, 5.16-5.18; docs/corrections.md C8: Eq. 5.14 is garbled): tooth ``j``
 (``j = 0..Z-1``) is a point mass ``m_T`` [kg] with rotary inertia ``J_T`` [kg m^2] attached to the rim
 centre line at ``theta_j = 2 pi j / Z``.  It is added *consistently* through the shape functions,
 ``M_T += m_T (a_r^T a_r + a_tau^T a_tau) + J_T a_theta^T a_theta`` with ``a = N(theta_j)`` the
@@ -309,7 +309,7 @@ def ring_load_vector(p: RingParams, theta, f_radial, f_tangential, nodal_inverse
     centre) and ``f_tangential`` [N] counter-clockwise; the result is ``a_r^T f_r + a_tau^T f_tau``
     (Eq. 6.11 / 3.21: work-equivalent, ``F . U = f_r u_r(theta) + f_tau u_tau(theta)`` for every ``U``).
     Note Eqs. 6.13-6.14 and 3.21 use different sign conventions for the mesh-force components
-    (ERRATA); the caller projects the mesh force onto (radial-inward, tangential-ccw) itself.
+    (docs/corrections.md C9); the caller projects the mesh force onto (radial-inward, tangential-ccw) itself.
     ``nodal_inverse`` as :func:`ring_shape_at`.
     """
     dofs, n = ring_shape_at(p, theta, nodal_inverse)

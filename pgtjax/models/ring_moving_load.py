@@ -18,7 +18,7 @@ the Eq. 6.16 time shift then becomes the phase ``2 pi z_m (n - 1) / N`` (zero fo
 Each load pushes the ring outward along the line of action of the planet-ring mesh, pressure angle alpha
 (Eqs. 6.13-6.14): components ``F_r = -F_n sin(alpha)`` along the element's radial DOF, which is positive
 *inward* (so ``F_r < 0`` pushes outward, as a planet does), and ``F_tau = -F_n cos(alpha)`` (clockwise for a
-counter-clockwise carrier). ERRATA: Eq. 3.21 writes these components with another sign convention; we use
+counter-clockwise carrier). Correction C9 (docs/corrections.md): Eq. 3.21 writes these components with another sign convention; we use
 ch. 6's, which matches the ring's inward-positive ``u_r``. The nodal forces are the work-equivalent transfer
 through the shape functions (Eq. 6.11, ``F_l = a(theta_n)^T (F_r, F_tau)``; :func:`ring_load_vector`), so the
 global load vector and the noise input are
@@ -28,7 +28,7 @@ global load vector and the noise input are
 
 and the equation of motion is Eq. 6.27, ``M U'' + C U' + K U = F(t) + B(t) W(t)`` (M, K: Eq. 6.23-6.24).
 
-Damping. Eq. 6.23 uses Rayleigh damping ``C = lambda_M M + lambda_K K`` but ch. 6 gives no values (ERRATA).
+Damping. Eq. 6.23 uses Rayleigh damping ``C = lambda_M M + lambda_K K`` but ch. 6 gives no values (correction C10).
 Default (``ring_ch6.toml``): 2 % of critical at the two ends of the band that matters, the first natural
 frequency of the supported ring (8,590 rad/s, 1,367 Hz: first flexural mode of the 60-degree bolt spans) and
 its fourth mode group (33,000 rad/s, 3.8 times higher), i.e. ``lambda_M = 2 zeta w_a w_b / (w_a + w_b)``,

@@ -130,7 +130,7 @@ class RegimeResult:
 
     @property
     def mesh_frequency(self) -> np.ndarray:
-        """Z_r f_c from the simulated carrier speed [Hz] (ERRATA Eq. 2)."""
+        """Z_r f_c from the simulated carrier speed [Hz] (corrected Eq. 2, docs/corrections.md C12)."""
         return self.model.params.z_ring * self.carrier_frequency
 
 
