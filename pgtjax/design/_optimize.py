@@ -1,0 +1,282 @@
+"""The optimization loop: any optax transformation, one jitted update (value, gradient, update,
+projection), stopping rules, a history written after every iteration and resumable from it."""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+import optax.tree_utils as otu
+
+from .._failure import SolverError
+from .._files import write_atomic, write_json
+from .._system import check_count
+from ._problem import DesignProblem
+
+HISTORY_FORMAT = "pgtjax-design-history/1"
+
+
+def default_optimizer() -> optax.GradientTransformationExtraArgs:
+    """L-BFGS with optax's zoom line search (strong Wolfe): the usual choice for a smooth deterministic
+    objective of a few dozen variables."""
+    return optax.lbfgs()
+
+
+@dataclass
+class OptimizeResult:
+    """``z``: optimal coordinates; ``params``: the design's parameters; ``history``: one dict per iteration
+    (``iteration``, ``objective``, ``response``, ``costs``, ``gradient_norm``, ``variables``, ``z``,
+    ``wall_s``), iteration 0 the start; ``converged`` and ``reason`` say why it stopped."""
+
+    z: np.ndarray
+    params: object
+    history: list[dict]
+    converged: bool
+    reason: str
+    problem: dict = field(default_factory=dict)
+
+    @property
+    def value(self) -> float:
+        return self.history[-1]["objective"]
+
+    @property
+    def initial_z(self) -> np.ndarray:
+        return np.asarray(self.history[0]["z"])
+
+
+def _projected_gradient(problem: DesignProblem, z, grad):
+    return z - problem.space.project(z - grad)
+
+
+def _evaluate(problem: DesignProblem, z):
+    value, grad = jax.value_and_grad(problem.value)(z)
+    return value, grad
+
+
+@eqx.filter_jit
+def _first(problem: DesignProblem, z):
+    value, grad = _evaluate(problem, z)
+    return value, grad, _record(problem, z, value, grad)
+
+
+def _record(problem: DesignProblem, z, value, grad):
+    """What the history keeps of an iterate: costs, the response (recovered from the value and the costs,
+    without another simulation) and the projected gradient's norm."""
+    params = problem.space.params(z)
+    costs = jnp.stack([c(params) for c in problem.costs]) if problem.costs else jnp.zeros((0,))
+    response = problem.scales[0] * (value - jnp.sum(problem.weights * costs / problem.scales[1:]))
+    return dict(
+        response=response,
+        costs=costs,
+        gradient_norm=jnp.linalg.norm(_projected_gradient(problem, z, grad)),
+        variables=problem.space.physical(z),
+    )
+
+
+@eqx.filter_jit
+def _step(problem: DesignProblem, optimizer, z, state, value, grad):
+    updates, state = optimizer.update(grad, state, z, value=value, grad=grad, value_fn=problem.value)
+    trial = optax.apply_updates(z, updates)
+    z_new = problem.space.project(trial)
+    cached_value = otu.tree_get(state, "value", None)
+    cached_grad = otu.tree_get(state, "grad", None)
+    if cached_value is None or cached_grad is None:  # no line search: evaluate the new point
+        value, grad = _evaluate(problem, z_new)
+    else:  # the line search evaluated the trial point; re-evaluate only if the projection moved it
+        moved = jnp.any(z_new != trial)
+        value, grad = jax.lax.cond(
+            moved, lambda: _evaluate(problem, z_new), lambda: (cached_value, cached_grad)
+        )
+        state = otu.tree_set(state, value=value, grad=grad)
+    return z_new, state, value, grad, _record(problem, z_new, value, grad)
+
+
+def _entry(iteration, z, value, record, labels, started):
+    return dict(
+        iteration=iteration,
+        objective=float(value),
+        response=float(record["response"]),
+        costs=np.asarray(record["costs"]).tolist(),
+        gradient_norm=float(record["gradient_norm"]),
+        variables={
+            k: float(v) for k, v in zip(labels, np.concatenate([np.ravel(x) for x in record["variables"]]))
+        },
+        z=np.asarray(z).tolist(),
+        wall_s=time.perf_counter() - started,
+    )
+
+
+def _state_path(history: Path) -> Path:
+    return history.with_name(history.name + ".state.npz")
+
+
+def _save(history: Path, problem_info, optimizer_name, entries, status, z, state, value, grad):
+    leaves = jax.tree.leaves(state)
+    arrays = {f"leaf{i}": np.asarray(x) for i, x in enumerate(leaves)}
+    arrays.update(z=np.asarray(z), value=np.asarray(value), grad=np.asarray(grad))
+    write_atomic(_state_path(history), lambda p: np.savez(p, **arrays))
+    write_json(
+        history,
+        dict(
+            format=HISTORY_FORMAT,
+            problem=problem_info,
+            optimizer=optimizer_name,
+            status=status,
+            iterations=entries,
+        ),
+    )
+
+
+def _comparable(info: dict) -> dict:
+    return {k: info[k] for k in ("variables", "objective", "costs", "horizon")}
+
+
+def _load(history: Path, problem_info, state_template):
+    try:
+        data = json.loads(history.read_text())
+        saved = np.load(_state_path(history))
+    except (OSError, ValueError) as err:
+        raise ValueError(f"cannot resume from `history` {str(history)!r}: {err}") from None
+    if data.get("format") != HISTORY_FORMAT:
+        raise ValueError(f"`history` {str(history)!r} is not a pgtjax design history")
+    if _comparable(data["problem"]) != _comparable(json.loads(json.dumps(problem_info))):
+        raise ValueError(
+            f"cannot resume from `history` {str(history)!r}: it was written for another problem (variables, "
+            "objective, costs or horizon differ)"
+        )
+    leaves, treedef = jax.tree.flatten(state_template)
+    try:
+        restored = [jnp.asarray(saved[f"leaf{i}"], dtype=jnp.asarray(x).dtype) for i, x in enumerate(leaves)]
+    except KeyError:
+        raise ValueError(
+            f"cannot resume: {str(_state_path(history))!r} holds another optimizer's state"
+        ) from None
+    if any(r.shape != jnp.shape(x) for r, x in zip(restored, leaves)):
+        raise ValueError(f"cannot resume: {str(_state_path(history))!r} holds another optimizer's state")
+    state = jax.tree.unflatten(treedef, restored)
+    return (
+        data["iterations"],
+        jnp.asarray(saved["z"]),
+        state,
+        jnp.asarray(saved["value"]),
+        jnp.asarray(saved["grad"]),
+    )
+
+
+def optimize(
+    problem: DesignProblem,
+    *,
+    optimizer: optax.GradientTransformation | None = None,
+    z0=None,
+    max_iter: int = 50,
+    rtol: float = 1e-6,
+    gtol: float = 1e-6,
+    history=None,
+    resume: bool = False,
+    progress: bool = True,
+) -> OptimizeResult:
+    """Minimize ``problem`` from ``z0`` (default: the base design) with ``optimizer`` (any optax
+    transformation; default :func:`default_optimizer`). Each iteration is one jitted call: update, apply,
+    projection on the bounds, value and gradient at the new point.
+
+    Stops when the relative change of the objective falls below ``rtol``, when the projected gradient's norm
+    (in the coordinates ``z``) falls below ``gtol``, or after ``max_iter`` iterations (then ``converged`` is
+    False). ``history``: a JSON file rewritten atomically after every iteration, with the optimizer's state
+    beside it (``<history>.state.npz``); ``resume=True`` continues from it (same problem required), so an
+    interrupted run loses at most one iteration. ``SolverError`` if an accepted iterate's value is not
+    finite (its SL fixed point failed), naming the iteration."""
+    if not isinstance(problem, DesignProblem):
+        raise ValueError(f"`problem` must be a pgtjax.design.DesignProblem, got {type(problem).__name__}")
+    max_iter = check_count("max_iter", max_iter)
+    for label, tol in (("rtol", rtol), ("gtol", gtol)):
+        if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not tol >= 0.0:
+            raise ValueError(f"`{label}` must be a number >= 0, got {tol!r}")
+    optimizer = default_optimizer() if optimizer is None else optimizer
+    if not isinstance(optimizer, optax.GradientTransformation):
+        raise ValueError(
+            f"`optimizer` must be an optax GradientTransformation, got {type(optimizer).__name__}"
+        )
+    optimizer = optax.with_extra_args_support(optimizer)
+    optimizer_name = type(optimizer).__name__
+    history = None if history is None else Path(history)
+    info = problem.describe()
+    labels = problem.space.labels()
+    started = time.perf_counter()
+
+    z = problem.space.project(problem.space.initial() if z0 is None else jnp.asarray(z0, jnp.float64))
+    if z.shape != (problem.space.n,):
+        raise ValueError(f"`z0` must have shape ({problem.space.n},), got {z.shape}")
+    state = optimizer.init(z)
+    if resume:
+        if history is None or not history.exists():
+            raise ValueError(f"`resume` needs an existing `history` file, got {history!r}")
+        entries, z, state, value, grad = _load(history, info, state)
+        if entries and entries[-1].get("stop"):
+            entries[-1].pop("stop")
+        offset = entries[-1]["wall_s"] if entries else 0.0
+        started -= offset
+    else:
+        value, grad, record = _first(problem, z)
+        entries = [_entry(0, z, value, record, labels, started)]
+        if not math.isfinite(entries[0]["objective"]):
+            raise SolverError("design optimization: the objective at the initial design is not finite")
+    status = dict(converged=False, reason="running")
+    if history is not None:
+        _save(history, info, optimizer_name, entries, status, z, state, value, grad)
+
+    from tqdm.auto import tqdm
+
+    bar = tqdm(
+        total=max_iter,
+        initial=entries[-1]["iteration"],
+        disable=not progress,
+        desc="optimize",
+        unit="it",
+        leave=True,
+    )
+    try:
+        while True:
+            k = entries[-1]["iteration"]
+            if entries[-1]["gradient_norm"] <= gtol:
+                status = dict(converged=True, reason=f"projected gradient norm below gtol = {gtol:g}")
+                break
+            if k >= 1:
+                previous, current = entries[-2]["objective"], entries[-1]["objective"]
+                if abs(previous - current) <= rtol * max(abs(current), 1e-300):
+                    status = dict(converged=True, reason=f"relative objective change below rtol = {rtol:g}")
+                    break
+            if k >= max_iter:
+                status = dict(converged=False, reason=f"max_iter = {max_iter} iterations reached")
+                break
+            z, state, value, grad, record = _step(problem, optimizer, z, state, value, grad)
+            entry = _entry(k + 1, z, value, record, labels, started)
+            if not math.isfinite(entry["objective"]):
+                raise SolverError(
+                    f"design optimization, iteration {k + 1}: the objective is not finite at the accepted design "
+                    f"{entry['variables']} (its SL fixed point failed); tighten the bounds or the step"
+                )
+            entries.append(entry)
+            bar.update(1)
+            bar.set_postfix(J=f"{entry['objective']:.6g}", grad=f"{entry['gradient_norm']:.2e}")
+            if history is not None:
+                _save(history, info, optimizer_name, entries, status, z, state, value, grad)
+    finally:
+        bar.close()
+    if history is not None:
+        _save(history, info, optimizer_name, entries, status, z, state, value, grad)
+    return OptimizeResult(
+        z=np.asarray(z),
+        params=problem.space.params(z),
+        history=entries,
+        converged=status["converged"],
+        reason=status["reason"],
+        problem=info,
+    )

@@ -1,0 +1,284 @@
+"""A design problem: variables over a model's parameters, how a design is simulated (:class:`Response`),
+an objective on the SL result and weighted costs on the design."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._deterministic import static_equilibrium
+from .._failure import SolverError
+from .._linearization import solve_moments
+from .._montecarlo import monte_carlo
+from .._system import check_count, validate_time_grid
+from ._objectives import AbstractCost, AbstractObjective, Names, as_objective, check_costs
+from ._variables import DesignSpace
+
+
+class Response(eqx.Module):
+    """How one design is simulated, re-solving its operating point inside the differentiated function:
+    ``build(params) -> System``; the mean start at the static equilibrium of that system (``static_start``,
+    else at rest at zero); the initial covariance ``initial_covariance(params, system)`` ((2n, 2n), default 0);
+    optional ``observables(params) -> Observables``; the horizon ``n_steps`` steps of ``dt`` (s), saved
+    every ``save_every`` steps; SL with ``criterion`` and the per-step tolerance ``rtol``."""
+
+    build: Callable = eqx.field(static=True)
+    dt: float = eqx.field(static=True)
+    n_steps: int = eqx.field(static=True)
+    save_every: int = eqx.field(static=True, default=1)
+    initial_covariance: Callable | None = eqx.field(static=True, default=None)
+    observables: Callable | None = eqx.field(static=True, default=None)
+    static_start: bool = eqx.field(static=True, default=True)
+    criterion: str = eqx.field(static=True, default="force")
+    rtol: float = eqx.field(static=True, default=1e-10)
+
+    def __check_init__(self):
+        if not callable(self.build):
+            raise ValueError(f"Response `build` must be a function params -> System, got {self.build!r}")
+        validate_time_grid(self.dt, self.n_steps, self.save_every)
+
+    def _start(self, params):
+        system = self.build(params)
+        u0 = static_equilibrium(system) if self.static_start else None
+        p0 = None if self.initial_covariance is None else self.initial_covariance(params, system)
+        obs = None if self.observables is None else self.observables(params)
+        return system, u0, p0, obs
+
+    def moments(self, params, *, save_every: int | None = None, throw: bool = True):
+        """``(system, MomentResult)`` of the design ``params``."""
+        system, u0, p0, obs = self._start(params)
+        result = solve_moments(
+            system,
+            dt=self.dt,
+            n_steps=self.n_steps,
+            save_every=save_every or self.save_every,
+            initial_displacement=u0,
+            initial_covariance=p0,
+            observables=obs,
+            criterion=self.criterion,
+            rtol=self.rtol,
+            throw=throw,
+        )
+        return system, result
+
+    def monte_carlo(self, params, *, n_samples: int, key, save_every: int, chunk_size: int = 5000):
+        """``(system, MonteCarloResult)`` of the nonlinear system at the design ``params``."""
+        system, u0, p0, obs = self._start(params)
+        result = monte_carlo(
+            system,
+            n_samples=n_samples,
+            key=key,
+            dt=self.dt,
+            n_steps=self.n_steps,
+            save_every=save_every,
+            initial_displacement=u0,
+            initial_covariance=p0,
+            observables=obs,
+            chunk_size=chunk_size,
+            progress=False,
+        )
+        return system, result
+
+    def names(self, params) -> Names:
+        system = self.build(params)
+        obs = None if self.observables is None else self.observables(params)
+        units = dict(zip(system.dof_names, system.dof_units))
+        units.update({c: "N" for c in system.contact_names()})
+        if obs is not None:
+            units.update(zip(obs.names, obs.units))
+        return Names(
+            dofs=tuple(system.dof_names),
+            contacts=tuple(system.contact_names()),
+            observables=() if obs is None else tuple(obs.names),
+            units=tuple(units.items()),
+        )
+
+
+class Terms(eqx.Module):
+    """The parts of a design's objective: ``response`` (the objective on the SL result, its own units),
+    ``costs`` (n_costs,) in their units, and ``value`` = response / scale_0 + sum_i w_i cost_i / scale_i."""
+
+    value: jax.Array
+    response: jax.Array
+    costs: jax.Array
+    converged: jax.Array
+
+
+class DesignProblem(eqx.Module):
+    """Minimize ``J(z) = R(z) / R_ref + sum_i w_i C_i(z) / C_i,ref`` over the coordinates ``z`` of ``space``:
+    ``R`` the ``objective`` of the SL result of ``response`` at the design, ``C_i`` the ``costs`` with their
+    weights. The references are the values at the initial design when ``normalize`` (so ``J = 1 + sum w_i``
+    there and a weight reads as "a relative cost is worth w relative response"), else 1.
+
+    Built eagerly: the variables, the objective's quantity names and the costs are checked, and the initial
+    design is simulated once (``SolverError`` if it fails), before anything is differentiated."""
+
+    space: DesignSpace
+    response: Response
+    objective: AbstractObjective
+    costs: tuple[AbstractCost, ...]
+    weights: jax.Array
+    scales: jax.Array
+    names: Names
+
+    def __init__(
+        self,
+        space: DesignSpace,
+        response: Response,
+        objective,
+        costs: Sequence[AbstractCost] = (),
+        *,
+        normalize: bool = True,
+        scales=None,
+    ):
+        if not isinstance(space, DesignSpace):
+            raise ValueError(f"`space` must be a pgtjax.design.DesignSpace, got {type(space).__name__}")
+        if not isinstance(response, Response):
+            raise ValueError(f"`response` must be a pgtjax.design.Response, got {type(response).__name__}")
+        self.space, self.response = space, response
+        self.objective = as_objective(objective)
+        self.costs = check_costs(costs)
+        self.names = response.names(space.base)
+        self.objective.check(self.names)
+        self.weights = jnp.asarray([c.weight for c in self.costs], jnp.float64).reshape(-1)
+        if scales is not None:
+            self.scales = jnp.asarray(scales, jnp.float64)
+        elif normalize:
+            params = space.params(space.initial())
+            system, result = response.moments(params)  # throws SolverError with when and where
+            raw = [self.objective(result, system, self.names)] + [c(params) for c in self.costs]
+            raw = np.asarray(raw, dtype=np.float64)
+            if not np.all(np.isfinite(raw)) or np.any(raw <= 0.0):
+                raise ValueError(
+                    f"cannot normalize by the initial design: objective and costs there are {raw.tolist()} "
+                    "(need finite positive values; pass normalize=False)"
+                )
+            self.scales = jnp.asarray(raw)
+        else:
+            self.scales = jnp.ones(1 + len(self.costs))
+        if self.scales.shape != (1 + len(self.costs),):
+            raise ValueError(f"`scales` must have {1 + len(self.costs)} entries, got {self.scales.shape}")
+
+    def with_weights(self, weights) -> DesignProblem:
+        """The same problem with other cost weights (same shapes: no recompilation)."""
+        w = jnp.asarray(weights, jnp.float64).reshape(self.weights.shape)
+        if not bool(jnp.all(w >= 0.0)):
+            raise ValueError(f"cost weights must be >= 0, got {np.asarray(w).tolist()}")
+        return eqx.tree_at(lambda p: p.weights, self, w)
+
+    def terms(self, z) -> Terms:
+        """Objective parts at coordinates ``z`` (differentiable; a step whose SL fixed point did not
+        converge makes ``value`` NaN, so that a line search backs off)."""
+        params = self.space.params(z)
+        system, result = self.response.moments(params, throw=False)
+        response = self.objective(result, system, self.names)
+        costs = jnp.stack([c(params) for c in self.costs]) if self.costs else jnp.zeros((0,))
+        value = response / self.scales[0] + jnp.sum(self.weights * costs / self.scales[1:])
+        converged = jnp.all(result.converged)
+        return Terms(
+            value=jnp.where(converged, value, jnp.nan), response=response, costs=costs, converged=converged
+        )
+
+    def value(self, z) -> jax.Array:
+        return self.terms(z).value
+
+    def describe(self) -> dict:
+        return dict(
+            variables=self.space.describe(),
+            objective=self.objective.describe(self.names),
+            costs=[dict(c.describe(), weight=float(w)) for c, w in zip(self.costs, np.asarray(self.weights))],
+            scales=np.asarray(self.scales).tolist(),
+            horizon=dict(
+                dt_s=self.response.dt,
+                n_steps=self.response.n_steps,
+                t_end_s=self.response.dt * self.response.n_steps,
+            ),
+        )
+
+
+@eqx.filter_jit
+def _batch_terms(problem: DesignProblem, zs):
+    return jax.vmap(problem.terms)(zs)
+
+
+def evaluate(problem: DesignProblem, designs) -> Terms:
+    """Objective parts of many designs at once: ``designs`` (n_designs, n_z) coordinates, one compiled,
+    ``vmap``-ed call (sweeps, Pareto fronts). Returns :class:`Terms` with a leading design axis."""
+    zs = jnp.asarray(designs, jnp.float64)
+    if zs.ndim != 2 or zs.shape[1] != problem.space.n:
+        raise ValueError(f"`designs` must have shape (n_designs, {problem.space.n}), got {zs.shape}")
+    return _batch_terms(problem, zs)
+
+
+def check_samples(n_samples, batches) -> tuple[int, int]:
+    n_samples, batches = check_count("n_samples", n_samples, 4), check_count("batches", batches, 2)
+    if n_samples % batches or n_samples // batches < 2:
+        raise ValueError(
+            f"`n_samples` ({n_samples}) must be a multiple of `batches` ({batches}) with >= 2 samples per batch"
+        )
+    return n_samples, batches
+
+
+def monte_carlo_check(
+    problem: DesignProblem,
+    designs: dict,
+    *,
+    n_samples: int = 2000,
+    batches: int = 10,
+    key=None,
+    save_every: int = 10,
+) -> dict:
+    """Monte Carlo of the nonlinear system at each design (name -> coordinates ``z``) with the same keys
+    (common random numbers), in ``batches`` independent batches: the objective's MC estimate with its
+    standard error (batch means), the SL value on the same time grid, and for each design after the first
+    the improvement over the first in standard errors of the paired batch differences."""
+    n_samples, batches = check_samples(n_samples, batches)
+    save_every = check_count("save_every", save_every)
+    if problem.response.n_steps % save_every:
+        raise ValueError(
+            f"`save_every` ({save_every}) must divide the horizon's {problem.response.n_steps} steps"
+        )
+    key = jax.random.key(0) if key is None else key
+    keys = jax.random.split(key, batches)
+    per_batch, sl = {}, {}
+    for name, z in designs.items():
+        params = problem.space.params(jnp.asarray(z, jnp.float64))
+        values = []
+        for b in range(batches):
+            system, result = problem.response.monte_carlo(
+                params, n_samples=n_samples // batches, key=keys[b], save_every=save_every
+            )
+            if float(result.unconverged) > 0:
+                raise SolverError(
+                    f"Monte Carlo of design {name!r}: {int(result.unconverged)} contact solves "
+                    "did not converge"
+                )
+            values.append(float(problem.objective(result, system, problem.names)))
+        per_batch[name] = np.asarray(values)
+        system, result = problem.response.moments(params, save_every=save_every)
+        sl[name] = float(problem.objective(result, system, problem.names))
+    first = next(iter(designs))
+    out = {}
+    for name, values in per_batch.items():
+        entry = dict(sl=sl[name], mc=float(values.mean()), mc_se=float(values.std(ddof=1) / np.sqrt(batches)))
+        if name != first:
+            diff = per_batch[first] - values
+            se = float(diff.std(ddof=1) / np.sqrt(batches))
+            entry.update(
+                improvement=float(diff.mean()),
+                improvement_se=se,
+                improvement_in_se=float(diff.mean() / se) if se > 0 else float("inf"),
+                relative_improvement=float(diff.mean() / per_batch[first].mean()),
+            )
+        out[name] = entry
+    return dict(
+        designs=out,
+        n_samples=n_samples,
+        batches=batches,
+        save_every=save_every,
+        objective=problem.objective.describe(problem.names),
+    )

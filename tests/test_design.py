@@ -1,0 +1,239 @@
+"""pgtjax.design: gradients of every built-in objective and cost through the variable maps against central
+differences, a 2-DOF problem with a hand-derived optimum, bounds, resume, batch evaluation, Monte Carlo
+verification and the errors of bad design specifications."""
+
+import copy
+import json
+import tomllib
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+import pytest
+
+import pgtjax as pg
+from pgtjax import design as pd
+from pgtjax import params as embedded
+from pgtjax.models import planetary as pm
+
+# ------------------------------------------------------------------ a 2-DOF chain with an analytic optimum
+#
+# ground -k1- m1 -k2- m2, damping C = alpha M, white-noise forces with intensity 2 pi S0 M (B = sqrt(M)).
+# Lyapunov: with C = alpha M and noise intensity Q = 2 pi S0 M, the stationary covariance is
+# Sigma_uu = c K^-1, Sigma_vv = c M^-1, Sigma_uv = 0 with c = pi S0 / alpha (substitute into
+# d/dt Sigma = 0). K^-1 = [[1/k1, 1/k1], [1/k1, 1/k1 + 1/k2]], so the mean of the two variances is
+# c (2/k1 + 1/k2) / 2 and with the cost lam (k1 + k2) the optimum is k1 = sqrt(c/lam), k2 = sqrt(c/(2 lam)).
+# Newmark's default noise treatment keeps the stationary covariance exactly, so starting from it the
+# time-mean variance is the stationary one at any step.
+
+MASSES = jnp.array([2.0, 1.0])
+ALPHA, S0 = 0.5, 0.01
+C = np.pi * S0 / ALPHA
+
+
+class Chain(eqx.Module):
+    k1: jax.Array
+    k2: jax.Array
+
+
+def chain_system(p):
+    k = jnp.array([[p.k1 + p.k2, -p.k2], [-p.k2, p.k2]])
+    m = jnp.diag(MASSES)
+    return pg.System(m, k, damping=ALPHA * m, noise_input=jnp.diag(jnp.sqrt(MASSES)), spectral_density=S0)
+
+
+def stationary(params, system):
+    return jax.scipy.linalg.block_diag(C * jnp.linalg.inv(system.stiffness), C * jnp.diag(1.0 / MASSES))
+
+
+def chain_problem(lam, lower=0.01, upper=100.0, transform="log", k0=(1.0, 3.0), n_steps=20):
+    space = pd.DesignSpace(
+        Chain(jnp.asarray(k0[0]), jnp.asarray(k0[1])),
+        [pd.Variable("k1", lower, upper, transform), pd.Variable("k2", lower, upper, transform)],
+    )
+    response = pd.Response(build=chain_system, dt=0.05, n_steps=n_steps, initial_covariance=stationary)
+    cost = pd.ParameterCost(fn=lambda p: p.k1 + p.k2, weight=lam, label="k1 + k2", unit="N/m")
+    return pd.DesignProblem(space, response, pd.Variance(["q0", "q1"]), [cost], normalize=False)
+
+
+def test_two_dof_optimum_matches_the_hand_derived_one():
+    lam = 0.01
+    result = pd.optimize(chain_problem(lam), rtol=0.0, gtol=1e-10, max_iter=60, progress=False)
+    k = result.history[-1]["variables"]
+    assert result.converged, result.reason
+    np.testing.assert_allclose([k["k1"], k["k2"]], [np.sqrt(C / lam), np.sqrt(C / (2 * lam))], rtol=1e-6)
+    # the value there is the analytic minimum too (the SL of a linear system is exact)
+    k1, k2 = np.sqrt(C / lam), np.sqrt(C / (2 * lam))
+    np.testing.assert_allclose(result.value, C * (2 / k1 + 1 / k2) / 2 + lam * (k1 + k2), rtol=1e-10)
+    assert result.z.dtype == np.float64
+
+
+@pytest.mark.parametrize("transform", ["log", "linear", "box"])
+def test_bounds_are_never_violated(transform):
+    # a tiny cost pushes both stiffnesses up; the upper bound stops them
+    lower, upper = 0.5, 5.0
+    for optimizer in (None, optax.adam(0.3)):
+        result = pd.optimize(
+            chain_problem(1e-5, lower, upper, transform),
+            optimizer=optimizer,
+            max_iter=15,
+            rtol=0.0,
+            gtol=0.0,
+            progress=False,
+        )
+        values = np.array([[e["variables"]["k1"], e["variables"]["k2"]] for e in result.history])
+        assert np.all(values >= lower) and np.all(values <= upper)
+        params = result.params
+        assert lower <= float(params.k1) <= upper and lower <= float(params.k2) <= upper
+        if transform != "box":  # the box map approaches its bound only asymptotically
+            np.testing.assert_allclose(values[-1], [upper, upper], rtol=1e-6)
+
+
+def test_resume_continues_the_same_history(tmp_path):
+    straight = pd.optimize(
+        chain_problem(0.01), max_iter=6, rtol=0.0, gtol=0.0, progress=False, history=tmp_path / "a.json"
+    )
+    path = tmp_path / "b.json"
+    pd.optimize(chain_problem(0.01), max_iter=3, rtol=0.0, gtol=0.0, progress=False, history=path)
+    assert len(json.loads(path.read_text())["iterations"]) == 4
+    resumed = pd.optimize(
+        chain_problem(0.01), max_iter=6, rtol=0.0, gtol=0.0, progress=False, history=path, resume=True
+    )
+    assert [e["iteration"] for e in resumed.history] == list(range(7))
+    np.testing.assert_allclose(
+        [e["z"] for e in resumed.history], [e["z"] for e in straight.history], rtol=1e-12, atol=1e-14
+    )
+    np.testing.assert_allclose(
+        [e["objective"] for e in resumed.history], [e["objective"] for e in straight.history], rtol=1e-12
+    )
+    with pytest.raises(ValueError, match="another problem"):
+        pd.optimize(chain_problem(0.02), max_iter=6, history=path, resume=True, progress=False)
+
+
+def test_batch_evaluation_equals_one_by_one():
+    problem = chain_problem(0.01)
+    zs = jnp.array([[0.0, 0.0], [0.5, -0.3], [-1.0, 1.2]])
+    batch = pd.evaluate(problem, zs)
+    for z, value in zip(zs, batch.value):
+        np.testing.assert_allclose(value, problem.value(z), rtol=1e-13)
+    k1, k2 = np.sqrt(0.01 * 100.0) * np.exp(np.asarray(zs)).T  # Log map around sqrt(lower * upper) = 1
+    np.testing.assert_allclose(batch.response, C * (2 / k1 + 1 / k2) / 2, rtol=1e-10)
+    assert batch.value.dtype == jnp.float64
+
+
+def test_monte_carlo_check_agrees_with_the_exact_variance():
+    problem = chain_problem(0.01, n_steps=40)
+    z_opt = jnp.log(jnp.array([np.sqrt(C / 0.01), np.sqrt(C / 0.02)]))  # Log map reference 1
+    check = pd.monte_carlo_check(
+        problem,
+        {"start": problem.space.initial(), "optimum": z_opt},
+        n_samples=2000,
+        batches=10,
+        key=jax.random.key(1),
+        save_every=10,
+    )
+    for entry in check["designs"].values():
+        assert abs(entry["mc"] - entry["sl"]) < 4.0 * entry["mc_se"]
+    opt = check["designs"]["optimum"]
+    # start k = (1, 3): response c (2 + 1/3) / 2; optimum k = (2.51, 1.77): c (0.80 + 0.56) / 2, 42 % less.
+    # The improvement is stated in standard errors of the paired (common random numbers) batch differences.
+    exact = 1.0 - (2 / np.sqrt(C / 0.01) + 1 / np.sqrt(C / 0.02)) / (2 + 1 / 3)
+    assert opt["improvement_in_se"] > 3
+    assert abs(opt["improvement"] - exact * check["designs"]["start"]["sl"]) < 4 * opt["improvement_se"]
+
+
+# ------------------------------------------------------------------ gradients on a small planetary train
+
+
+def small_planetary():
+    with open(embedded.path("planetary.toml"), "rb") as fh:
+        d = tomllib.load(fh)
+    d = copy.deepcopy(d)
+    d["ring"]["n_elements"] = 6
+    d["wind"]["turbulence_intensity"] = 2.0  # meshes near contact loss: every objective has a gradient
+    return pm.load_params(d)
+
+
+def small_problem(objective, costs=()):
+    p = small_planetary()
+    variables = [
+        pd.Variable("ring.k_support_tangential", 1e9, 1e11, "log", size=6),
+        pd.Variable("ring.thickness", 0.08, 0.2, "box"),
+        pd.Variable("mesh.ring_planet", 5e9, 5e10, "log"),
+        # any parameter can be a variable; these two make the force statistics depend on the design at
+        # first order, so that central differences resolve their derivatives to 1e-6
+        pd.Variable("wind.turbulence_intensity", 0.5, 8.0, "log"),
+        pd.Variable("mesh.half_backlash", 1e-5, 1e-3, "log"),
+    ]
+    response = pd.planetary_response(p, periods=0.002, rtol=1e-13)
+    return pd.DesignProblem(pd.DesignSpace(p, variables), response, objective, costs)
+
+
+OBJECTIVES = [
+    pd.Std(["ring_mesh1", "ring_mesh2"]),
+    pd.Variance(["sun_u", "ring_planet1"], over=pd.SmoothMax()),
+    pd.DynamicFactor(["ring_planet1", "sun_planet2"]),
+    pd.ContactLoss(["ring_planet1", "ring_planet2", "ring_planet3"]),
+]
+COSTS = [pd.SupportStiffness(), pd.RimMass()]
+
+
+def test_every_objective_and_cost_gradient_matches_central_differences():
+    # one simulation, every built-in objective and cost of it (one compilation for all)
+    problem = small_problem(OBJECTIVES[0], COSTS)
+
+    def outputs(z):
+        params = problem.space.params(z)
+        system, result = problem.response.moments(params, throw=False)
+        parts = [o(result, system, problem.names) for o in OBJECTIVES] + [c(params) for c in COSTS]
+        return jnp.stack(parts + [problem.value(z)])
+
+    z0 = problem.space.initial() + 0.1 * jax.random.normal(jax.random.key(2), (problem.space.n,))
+    direction = jax.random.normal(jax.random.key(3), z0.shape)
+    direction = direction / jnp.linalg.norm(direction)
+    values = eqx.filter_jit(outputs)
+    jacobian = eqx.filter_jit(jax.jacrev(outputs))(z0)
+    assert jacobian.dtype == jnp.float64 and bool(jnp.all(jnp.isfinite(jacobian)))
+
+    def central(h):
+        return (values(z0 + h * direction) - values(z0 - h * direction)) / (2 * h)
+
+    # Richardson-extrapolated central differences: truncation O(h^4), round-off ~1e-13 relative / h
+    reference = (4 * central(1e-2) - central(2e-2)) / 3
+    derivative = jacobian @ direction
+    names = [type(o).__name__ for o in OBJECTIVES + COSTS] + ["value"]
+    for name, got, want in zip(names, derivative, reference):
+        np.testing.assert_allclose(got, want, rtol=1e-6, err_msg=name)
+        assert abs(float(want)) > 1e-3 * abs(float(values(z0)[names.index(name)])), name  # not a trivial 0
+
+
+# ------------------------------------------------------------------------------------ bad specifications
+
+
+def test_bad_specs_raise_value_errors_naming_the_entry():
+    p = small_planetary()
+    with pytest.raises(ValueError, match="ring.no_such_field"):
+        pd.DesignSpace(p, [pd.Variable("ring.no_such_field", 1.0, 2.0)])
+    with pytest.raises(ValueError, match="k_tan.*lower.*below"):
+        pd.Variable("ring.k_support_tangential", 2e10, 1e10, name="k_tan")
+    with pytest.raises(ValueError, match="ring.k_support_radial.*lower. > 0"):
+        pd.Variable("ring.k_support_radial", 0.0, 1e11, "log")
+    with pytest.raises(ValueError, match="transform"):
+        pd.Variable("ring.thickness", 0.1, 0.2, "sqrt")
+    with pytest.raises(ValueError, match="ring.thickness.*outside"):
+        pd.DesignSpace(p, [pd.Variable("ring.thickness", 0.2, 0.3, "linear")])
+    with pytest.raises(ValueError, match="strictly inside"):
+        pd.DesignSpace(p, [pd.Variable("ring.thickness", 0.128, 0.3, "box")])
+    with pytest.raises(ValueError, match="static choice"):
+        pd.DesignSpace(p, [pd.Variable("n_planets", 1.0, 5.0, "linear")])
+    with pytest.raises(ValueError, match="cannot be spread"):
+        three = eqx.tree_at(lambda q: q.ring.k_support_radial, p, jnp.ones(3) * 1e10)
+        pd.DesignSpace(three, [pd.Variable("ring.k_support_radial", 1e9, 1e11, size=6)])
+    with pytest.raises(ValueError, match="unknown quantity 'ring_mesh9'"):
+        small_problem(pd.Std(["ring_mesh9"]))
+    with pytest.raises(ValueError, match="unknown mesh 'sun_planet7'"):
+        small_problem(pd.DynamicFactor(["sun_planet7"]))
+    with pytest.raises(ValueError, match="weight"):
+        pd.SupportStiffness(weight=-1.0)
