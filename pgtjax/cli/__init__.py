@@ -4,7 +4,7 @@ One module per study family registers its subcommands on the parser of :func:`bu
 :mod:`~pgtjax.cli.planetary` (``run``, ``planetary``, ``planetary-modal``), :mod:`~pgtjax.cli.gear_pair`
 (``gear-pair``, ``gear-pair-step``, ``gear-pair-modal``), :mod:`~pgtjax.cli.ring` (``ring-modal``,
 ``ring-free-vibration``, ``ring-moving-load``) and :mod:`~pgtjax.cli.back_to_back` (``back-to-back``,
-``back-to-back-modal``). The handlers only wire options to the functions of :mod:`pgtjax.studies` and print
+``back-to-back-modal``); :mod:`~pgtjax.cli.design` (``optimize``). The handlers only wire options to the functions of :mod:`pgtjax.studies` and print
 what those return; ``python3 -m pgtjax.cli`` runs :func:`main` like the ``pgtjax`` console script.
 """
 
@@ -18,7 +18,7 @@ import threading
 from pathlib import Path
 
 from .._failure import SolverError
-from . import back_to_back, gear_pair, planetary, ring
+from . import back_to_back, design, gear_pair, planetary, ring
 
 __all__ = ["build_parser", "main"]
 
@@ -34,6 +34,7 @@ def build_parser() -> argparse.ArgumentParser:
     gear_pair.register(sub)
     ring.register(sub)
     back_to_back.register(sub)
+    design.register(sub)
     return parser
 
 

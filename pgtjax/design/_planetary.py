@@ -3,6 +3,8 @@ the ring's deformation along each ring-planet line of action at the moving mesh.
 
 from __future__ import annotations
 
+import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -13,23 +15,36 @@ from ._problem import Response
 from ._variables import Variable
 
 
+class _RingMeshMatrix(eqx.Module):
+    """C(t) of :func:`ring_mesh_observables`, as a module: its arrays are pytree leaves, so that a solver
+    compiled for one design is reused for the next (a closure would be a new static function each time)."""
+
+    params: pm.PlanetaryParams  # resolved
+    inverse: jax.Array
+    angles: tuple[float, ...] = eqx.field(static=True)
+
+    def __call__(self, t):
+        lay = pm.layout(self.params)
+        rows = jnp.stack(
+            [
+                pm.elastic_ring_part(self.params, self.params.mesh.carrier_speed * t + a, self.inverse)
+                for a in self.angles
+            ]
+        )
+        zeros = jnp.zeros((len(self.angles), lay.n_dof))
+        return zeros.at[:, lay.ring_start : lay.ring_start + lay.n_ring].set(rows)
+
+
 def ring_mesh_observables(p: pm.PlanetaryParams) -> Observables:
     """``ring_mesh{n}`` (m): the ring's displacement along planet n's ring-planet line of action at the
     moving contact point, ``sin a u_r + cos a (u_tau - e u_theta)`` (the ring's share of that mesh's
     deflection; thesis Eq. 3.16 as corrected, docs/corrections.md C4). Elastic ring only."""
     if p.ring_model != "elastic":
         raise ValueError(f"ring_mesh_observables needs ring_model = 'elastic', got {p.ring_model!r}")
-    lay = pm.layout(p)
     q = pm.resolved(p)
-    inverse = ring_nodal_inverse(q.ring)  # formed once per design, not at every step
-    angles = [float(a) for a in p.planet_angles()]
-
-    def matrix(t):
-        rows = jnp.stack([pm.elastic_ring_part(q, q.mesh.carrier_speed * t + a, inverse) for a in angles])
-        return (
-            jnp.zeros((len(angles), lay.n_dof)).at[:, lay.ring_start : lay.ring_start + lay.n_ring].set(rows)
-        )
-
+    angles = tuple(float(a) for a in p.planet_angles())
+    # the nodal inverse is formed once per design, not at every step
+    matrix = _RingMeshMatrix(q, ring_nodal_inverse(q.ring), angles)
     return Observables(matrix, names=[f"ring_mesh{n + 1}" for n in range(len(angles))])
 
 

@@ -15,7 +15,7 @@ from .._failure import SolverError
 from .._linearization import solve_moments
 from .._montecarlo import monte_carlo
 from .._system import check_count, validate_time_grid
-from ._objectives import AbstractCost, AbstractObjective, Names, as_objective, check_costs
+from ._objectives import AbstractCost, AbstractObjective, Names, _series, as_objective, check_costs
 from ._variables import DesignSpace
 
 
@@ -231,36 +231,49 @@ def monte_carlo_check(
     batches: int = 10,
     key=None,
     save_every: int = 10,
+    series: Sequence[str] = (),
 ) -> dict:
     """Monte Carlo of the nonlinear system at each design (name -> coordinates ``z``) with the same keys
     (common random numbers), in ``batches`` independent batches: the objective's MC estimate with its
     standard error (batch means), the SL value on the same time grid, and for each design after the first
-    the improvement over the first in standard errors of the paired batch differences."""
+    the improvement over the first in standard errors of the paired batch differences. ``series``: names of
+    quantities whose standard deviation over time is returned too (``"series"``: per quantity and design,
+    the times, SL, and the MC batch mean with its standard error)."""
     n_samples, batches = check_samples(n_samples, batches)
     save_every = check_count("save_every", save_every)
     if problem.response.n_steps % save_every:
         raise ValueError(
             f"`save_every` ({save_every}) must divide the horizon's {problem.response.n_steps} steps"
         )
+    for q in series:
+        problem.names.kind(q)  # ValueError naming an unknown quantity, before any simulation
     key = jax.random.key(0) if key is None else key
     keys = jax.random.split(key, batches)
-    per_batch, sl = {}, {}
+    per_batch, sl, curves = {}, {}, {q: {} for q in series}
     for name, z in designs.items():
         params = problem.space.params(jnp.asarray(z, jnp.float64))
-        values = []
+        values, batch_curves = [], []
         for b in range(batches):
             system, result = problem.response.monte_carlo(
                 params, n_samples=n_samples // batches, key=keys[b], save_every=save_every
             )
             if float(result.unconverged) > 0:
                 raise SolverError(
-                    f"Monte Carlo of design {name!r}: {int(result.unconverged)} contact solves "
-                    "did not converge"
+                    f"Monte Carlo of design {name!r}: {int(result.unconverged)} contact solves did not converge"
                 )
             values.append(float(problem.objective(result, system, problem.names)))
+            batch_curves.append([np.asarray(_series(result, problem.names, q, "std")) for q in series])
         per_batch[name] = np.asarray(values)
         system, result = problem.response.moments(params, save_every=save_every)
         sl[name] = float(problem.objective(result, system, problem.names))
+        stacked = np.asarray(batch_curves)  # (batches, quantity, time)
+        for i, q in enumerate(series):
+            curves[q][name] = dict(
+                times=np.asarray(result.times),
+                sl=np.asarray(_series(result, problem.names, q, "std")),
+                mc=stacked[:, i].mean(axis=0),
+                mc_se=stacked[:, i].std(axis=0, ddof=1) / np.sqrt(batches),
+            )
     first = next(iter(designs))
     out = {}
     for name, values in per_batch.items():
@@ -281,4 +294,5 @@ def monte_carlo_check(
         batches=batches,
         save_every=save_every,
         objective=problem.objective.describe(problem.names),
+        series=curves,
     )

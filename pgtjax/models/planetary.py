@@ -180,6 +180,36 @@ def _f(x):
     return jnp.asarray(x, dtype=jnp.float64)
 
 
+def _per_support(name: str, value, n_supports: int):
+    """A bolt stiffness of the parameter file: one number for every bolt, or a list with one per bolt."""
+    if isinstance(value, list):
+        if len(value) != n_supports or not all(isinstance(v, (int, float)) for v in value):
+            raise ValueError(
+                f"[ring] `{name}` must be a number or a list of {n_supports} numbers (one per bolt), got {value!r}"
+            )
+        return np.asarray(value, dtype=np.float64)
+    return float(value)
+
+
+# Where each differentiable parameter that a design may change lives in the parameter file: the path of
+# the PlanetaryParams leaf -> (TOML table, key). Used to write an optimized design back to a file.
+PARAMETER_FILE_KEYS = {
+    "ring.k_support_radial": ("ring", "support_radial"),
+    "ring.k_support_tangential": ("ring", "support_tangential"),
+    "ring.k_support_torsional": ("ring", "support_torsional"),
+    "ring.thickness": ("ring", "rim_thickness"),
+    "ring.face_width": ("ring", "face_width"),
+    "mesh.sun_planet": ("mesh", "sun_planet_stiffness"),
+    "mesh.ring_planet": ("mesh", "ring_planet_stiffness"),
+    "mesh.half_backlash": ("mesh", "half_backlash"),
+    "sun.bearing": ("sun", "bearing_stiffness"),
+    "planet.bearing": ("planet", "bearing_stiffness"),
+    "carrier.bearing": ("carrier", "bearing_stiffness"),
+    "damping.alpha": ("damping", "alpha"),
+    "damping.beta": ("damping", "beta"),
+}
+
+
 def resolved(p: PlanetaryParams) -> PlanetaryParams:
     """``p`` with its derived quantities set from the independent ones (the ring's centre radius,
     :attr:`PlanetaryParams.elastic_ring`). Done once, where the system is built, so that the time functions
@@ -223,9 +253,9 @@ def load_params(source, **overrides) -> PlanetaryParams:
             density=float(r["density"]),
             n_elements=n_el,
             support_nodes=supports,
-            k_support_radial=float(r["support_radial"]),
-            k_support_tangential=float(r["support_tangential"]),
-            k_support_torsional=float(r["support_torsional"]),
+            k_support_radial=_per_support("support_radial", r["support_radial"], n_sup),
+            k_support_tangential=_per_support("support_tangential", r["support_tangential"], n_sup),
+            k_support_torsional=_per_support("support_torsional", r["support_torsional"], n_sup),
         )
         base = lambda radius: _f(radius * math.cos(alpha))  # noqa: E731
         params = PlanetaryParams(

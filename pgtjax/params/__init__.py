@@ -1,5 +1,6 @@
 """Embedded parameter files (TOML) of the documents' models."""
 
+import json
 import tomllib
 from importlib import resources
 from pathlib import Path
@@ -20,3 +21,34 @@ def read_toml(path) -> dict:
             return tomllib.load(fh)
     except tomllib.TOMLDecodeError as err:
         raise ValueError(f"parameter file `{path}` is not valid TOML: {err}") from None
+
+
+def _toml_value(value) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        return repr(value)  # shortest text that reads back to the same double
+    if isinstance(value, str):
+        return json.dumps(value)  # a JSON string is a valid TOML basic string
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    raise ValueError(f"cannot write {value!r} ({type(value).__name__}) to a parameter file")
+
+
+def dumps_toml(data: dict, header: str = "") -> str:
+    """TOML text of a parameter dict (top-level values, then one table per sub-dict; numbers, strings,
+    booleans and lists of them): what :func:`read_toml` reads back to the same dict."""
+    lines = [f"# {line}" for line in header.splitlines()]
+    tables = {k: v for k, v in data.items() if isinstance(v, dict)}
+    for key, value in data.items():
+        if not isinstance(value, dict):
+            lines.append(f"{key} = {_toml_value(value)}")
+    for name, table in tables.items():
+        lines += ["", f"[{name}]"]
+        for key, value in table.items():
+            if isinstance(value, dict):
+                raise ValueError(f"nested table [{name}.{key}] is not supported")
+            lines.append(f"{key} = {_toml_value(value)}")
+    return "\n".join(lines) + "\n"

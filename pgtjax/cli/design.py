@@ -1,0 +1,91 @@
+"""``pgtjax optimize``: the design study of :mod:`pgtjax.studies.design` (a TOML design specification on a
+planetary parameter file) with its outputs."""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+from ._types import positive_int
+
+
+def _run_optimize(args) -> int:
+    from .. import params as embedded
+    from ..models import planetary as pm
+    from ..studies import design as study
+
+    params_file = args.params if args.params is not None else embedded.path("planetary.toml")
+    data = embedded.read_toml(params_file)
+    params = pm.load_params(data)
+    spec = study.load_spec(args.design)
+    if args.samples is not None:
+        if args.samples % spec.verification["batches"]:
+            raise ValueError(
+                f"`--samples` ({args.samples}) must be a multiple of the spec's "
+                f"{spec.verification['batches']} batches"
+            )
+        spec.verification["n_samples"] = args.samples
+    if args.max_iter is not None:
+        spec.optimizer["max_iter"] = args.max_iter
+    if args.periods is not None:
+        spec.periods = args.periods
+    out = args.out or Path("pgtjax-output") / "design"
+    history = out / "history.json"
+    if args.resume and not history.exists():
+        raise ValueError(f"`--resume`: no history to resume in {str(out)!r} (run without --resume first)")
+    start = time.perf_counter()
+
+    def say(msg):
+        print(f"[{time.perf_counter() - start:7.1f} s] {msg}", flush=True)
+
+    say(
+        f"parameters: {params_file}; design: {args.design or 'embedded design.toml'}; "
+        f"horizon {spec.periods:g} carrier periods"
+    )
+    result = study.run_design(
+        params, spec, history=history, resume=args.resume, pareto=not args.no_pareto, say=say
+    )
+    written = study.write_outputs(result, spec, out, data)
+    s = study.summary(result, spec)
+    print(
+        f"objective ({s['objective']['name']}, {s['objective']['unit']}): symmetric "
+        f"{s['objective']['symmetric']:.6g} -> optimum {s['objective']['optimum']:.6g} "
+        f"({100 * s['objective']['relative_change']:+.2f} %)"
+    )
+    for c in s["costs"]:
+        print(f"cost ({c['name']}, {c['unit']}): {c['symmetric']:.6g} -> {c['optimum']:.6g}")
+    print(s["monte_carlo"]["statement"])
+    say(
+        f"done; {len(written)} files written to {out.resolve()} (history.json, optimized_params.toml, "
+        "summary.json, figures)"
+    )
+    return 0
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    opt = subparsers.add_parser(
+        "optimize",
+        help="design optimization (optax) of the planetary train: by default the stiffness of each of the "
+        "6 ring bolts against the ring's deformation at the meshes, verified by Monte Carlo",
+    )
+    opt.add_argument(
+        "--params",
+        type=Path,
+        default=None,
+        help="planetary parameter file (TOML); default: the embedded thesis set",
+    )
+    opt.add_argument(
+        "--design",
+        type=Path,
+        default=None,
+        help="design specification (TOML: variables, objective, costs, optimizer, horizon, "
+        "verification, pareto); default: the embedded bolt study (pgtjax/params/design.toml)",
+    )
+    opt.add_argument("--out", type=Path, default=None, help="output folder (default: pgtjax-output/design)")
+    opt.add_argument("--resume", action="store_true", help="continue from the history in --out")
+    opt.add_argument("--no-pareto", action="store_true", help="skip the Pareto front")
+    opt.add_argument("--samples", type=positive_int, default=None, help="override the Monte Carlo samples")
+    opt.add_argument("--max-iter", type=positive_int, default=None, help="override the iteration limit")
+    opt.add_argument("--periods", type=float, default=None, help="override the horizon (carrier periods)")
+    opt.set_defaults(func=_run_optimize)

@@ -1,0 +1,483 @@
+"""Design study on the planetary train: a TOML design specification (variables, objective, costs,
+optimizer, horizon, verification, Pareto weights) turned into a :class:`pgtjax.design.DesignProblem`,
+optimized, verified by Monte Carlo and written out (history, optimized parameter file, figures, summary)."""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from .. import design as pd
+from .. import params as _params
+from .. import plots
+from .._files import write_json, write_text
+from ..models import planetary as pm
+
+SPEC_SECTIONS = ("horizon", "variables", "objective", "costs", "optimizer", "verification", "pareto")
+
+
+@dataclasses.dataclass
+class DesignSpec:
+    """A validated design specification (see the embedded ``design.toml``)."""
+
+    periods: float
+    dt: float
+    variables: list[dict]
+    objective: dict
+    costs: list[dict]
+    optimizer: dict
+    verification: dict
+    pareto_weights: list[float]
+
+
+def _entry(section: str, data: dict, allowed: dict, where: str):
+    """Check a table's keys and value types: ``allowed`` maps key -> (types, default or ``...`` if required)."""
+    if not isinstance(data, dict):
+        raise ValueError(f"design spec {where}: must be a table, got {data!r}")
+    unknown = set(data) - set(allowed)
+    if unknown:
+        raise ValueError(f"design spec {where}: unknown key(s) {sorted(unknown)}; allowed: {sorted(allowed)}")
+    out = {}
+    for key, (types, default) in allowed.items():
+        if key not in data:
+            if default is ...:
+                raise ValueError(f"design spec {where}: `{key}` is required")
+            out[key] = default
+            continue
+        value = data[key]
+        types = types if isinstance(types, tuple) else (types,)
+        if (isinstance(value, bool) and bool not in types) or not isinstance(value, types):
+            raise ValueError(f"design spec {where}: `{key}` has the wrong type ({value!r})")
+        out[key] = value
+    return out
+
+
+NUMBER = (int, float)
+
+
+def load_spec(source=None) -> DesignSpec:
+    """Read and check a design specification (TOML file or dict; default: the embedded ``design.toml``).
+    Every problem is a ``ValueError`` naming the entry."""
+    if source is None:
+        source = _params.path("design.toml")
+    data = _params.read_toml(source) if isinstance(source, (str, Path)) else copy.deepcopy(dict(source))
+    unknown = set(data) - set(SPEC_SECTIONS)
+    if unknown:
+        raise ValueError(f"design spec: unknown section(s) {sorted(unknown)}; allowed: {list(SPEC_SECTIONS)}")
+    horizon = _entry(
+        "horizon", data.get("horizon", {}), {"periods": (NUMBER, 1.0), "dt": (NUMBER, 0.0027)}, "[horizon]"
+    )
+    variables = data.get("variables")
+    if not isinstance(variables, list) or not variables:
+        raise ValueError("design spec: [[variables]] must list at least one variable")
+    var_keys = {
+        "path": (str, ...),
+        "name": (str, None),
+        "per_bolt": (bool, False),
+        "lower": (NUMBER, ...),
+        "upper": (NUMBER, ...),
+        "transform": (str, "log"),
+        "unit": (str, ""),
+    }
+    variables = [_entry("variables", v, var_keys, f"[[variables]] #{i + 1}") for i, v in enumerate(variables)]
+    objective = _entry(
+        "objective",
+        data.get("objective", {}),
+        {
+            "kind": (str, ...),
+            "quantities": (list, ...),
+            "over": (str, "mean"),
+            "n_sigma": (NUMBER, 3.0),
+            "order": (NUMBER, 8.0),
+            "start": (NUMBER, 0.0),
+        },
+        "[objective]",
+    )
+    if objective["kind"] not in pd._objectives.OBJECTIVES:
+        raise ValueError(
+            f"design spec [objective]: unknown kind {objective['kind']!r}; known: "
+            f"{list(pd._objectives.OBJECTIVES)}"
+        )
+    if objective["over"] not in pd._objectives.REDUCTIONS:
+        raise ValueError(
+            f"design spec [objective]: unknown `over` {objective['over']!r}; known: "
+            f"{list(pd._objectives.REDUCTIONS)}"
+        )
+    costs = [
+        _entry("costs", c, {"kind": (str, ...), "weight": (NUMBER, 1.0)}, f"[[costs]] #{i + 1}")
+        for i, c in enumerate(data.get("costs", []))
+    ]
+    for i, c in enumerate(costs):
+        if c["kind"] not in pd._objectives.COSTS:
+            raise ValueError(
+                f"design spec [[costs]] #{i + 1}: unknown kind {c['kind']!r}; known: "
+                f"{list(pd._objectives.COSTS)}"
+            )
+    optimizer = _entry(
+        "optimizer",
+        data.get("optimizer", {}),
+        {
+            "name": (str, "lbfgs"),
+            "max_iter": (int, 50),
+            "rtol": (NUMBER, 1e-6),
+            "gtol": (NUMBER, 1e-6),
+            "learning_rate": (NUMBER, 0.05),
+        },
+        "[optimizer]",
+    )
+    if optimizer["name"] not in ("lbfgs", "adam"):
+        raise ValueError(f"design spec [optimizer]: unknown name {optimizer['name']!r}; known: lbfgs, adam")
+    verification = _entry(
+        "verification",
+        data.get("verification", {}),
+        {"n_samples": (int, 2000), "batches": (int, 10), "save_every": (int, 10), "seed": (int, 0)},
+        "[verification]",
+    )
+    pareto = _entry("pareto", data.get("pareto", {}), {"weights": (list, [])}, "[pareto]")
+    if not all(isinstance(w, NUMBER) and not isinstance(w, bool) and w >= 0 for w in pareto["weights"]):
+        raise ValueError(f"design spec [pareto]: `weights` must be numbers >= 0, got {pareto['weights']!r}")
+    if pareto["weights"] and len(costs) != 1:
+        raise ValueError("design spec [pareto]: a front needs exactly one [[costs]] entry to weigh")
+    return DesignSpec(
+        periods=float(horizon["periods"]),
+        dt=float(horizon["dt"]),
+        variables=variables,
+        objective=objective,
+        costs=costs,
+        optimizer=optimizer,
+        verification=verification,
+        pareto_weights=[float(w) for w in pareto["weights"]],
+    )
+
+
+def build_problem(params: pm.PlanetaryParams, spec: DesignSpec) -> pd.DesignProblem:
+    """The :class:`pgtjax.design.DesignProblem` of ``spec`` on the planetary train ``params``."""
+    n_bolts = len(params.ring.support_nodes)
+    variables = []
+    for i, v in enumerate(spec.variables):
+        if v["path"] not in pm.PARAMETER_FILE_KEYS:
+            raise ValueError(
+                f"design spec [[variables]] #{i + 1}: unknown or unsupported path {v['path']!r}; "
+                f"supported: {', '.join(pm.PARAMETER_FILE_KEYS)}"
+            )
+        if v["per_bolt"] and not v["path"].startswith("ring.k_support"):
+            raise ValueError(
+                f"design spec [[variables]] #{i + 1}: `per_bolt` applies to ring.k_support_* only"
+            )
+        try:
+            variables.append(
+                pd.Variable(
+                    v["path"],
+                    v["lower"],
+                    v["upper"],
+                    v["transform"],
+                    size=n_bolts if v["per_bolt"] else None,
+                    name=v["name"],
+                    unit=v["unit"],
+                )
+            )
+        except ValueError as err:
+            raise ValueError(f"design spec [[variables]] #{i + 1}: {err}") from None
+    o = spec.objective
+    over = (
+        pd.TimeMean(start=o["start"])
+        if o["over"] == "mean"
+        else pd.SmoothMax(order=o["order"], start=o["start"])
+    )
+    kind = pd._objectives.OBJECTIVES[o["kind"]]
+    extra = {"n_sigma": o["n_sigma"]} if o["kind"] == "dynamic_factor" else {}
+    try:
+        objective = kind(o["quantities"], over=over, **extra)
+    except ValueError as err:
+        raise ValueError(f"design spec [objective]: {err}") from None
+    costs = [pd._objectives.COSTS[c["kind"]](weight=float(c["weight"])) for c in spec.costs]
+    response = pd.planetary_response(params, periods=spec.periods, dt=spec.dt)
+    try:
+        return pd.DesignProblem(pd.DesignSpace(params, variables), response, objective, costs)
+    except ValueError as err:
+        raise ValueError(f"design spec: {err}") from None
+
+
+def make_optimizer(spec: DesignSpec):
+    if spec.optimizer["name"] == "adam":
+        return optax.adam(spec.optimizer["learning_rate"])
+    return pd.default_optimizer()
+
+
+def optimized_parameter_data(data: dict, problem: pd.DesignProblem, z) -> dict:
+    """The parameter file's dict with the design variables set from ``z`` (per-bolt values as lists)."""
+    out = copy.deepcopy(data)
+    for v, x in zip(problem.space.variables, problem.space.physical(jnp.asarray(z))):
+        table, key = pm.PARAMETER_FILE_KEYS[v.path]
+        values = [float(a) for a in np.asarray(x).reshape(-1)]
+        out[table][key] = values if v.size is not None else values[0]
+    return out
+
+
+@dataclasses.dataclass
+class DesignStudy:
+    problem: pd.DesignProblem
+    result: pd.OptimizeResult
+    check: dict
+    front: list[dict]
+    series: dict
+    timings: dict
+
+
+def run_design(params=None, spec=None, *, history=None, resume=False, pareto=True, say=print) -> DesignStudy:
+    """Optimize ``spec`` (default: the embedded bolt study) on ``params`` (default: the embedded train),
+    trace the Pareto front by re-optimizing for each further cost weight (warm-started), and check the
+    symmetric start against the optimum by Monte Carlo with common random numbers."""
+    p = pm.default_params() if params is None else params
+    spec = load_spec() if spec is None else spec
+    timings = {}
+    t = time.perf_counter()
+    problem = build_problem(p, spec)
+    timings["setup_s"] = time.perf_counter() - t
+    say(
+        f"design: {problem.space.n} variables, objective: {problem.objective.describe(problem.names)['name']}"
+    )
+    t = time.perf_counter()
+    o = spec.optimizer
+    optimizer = make_optimizer(spec)  # one object: its update compiles once for the optimum and the front
+    result = pd.optimize(
+        problem,
+        optimizer=optimizer,
+        max_iter=o["max_iter"],
+        rtol=o["rtol"],
+        gtol=o["gtol"],
+        history=history,
+        resume=resume,
+        progress=say is not None,
+    )
+    timings["optimize_s"] = time.perf_counter() - t
+    say(
+        f"optimum after {result.history[-1]['iteration']} iterations ({result.reason}): "
+        f"objective {result.history[0]['objective']:.6g} -> {result.value:.6g}"
+    )
+    front_z = []
+    if pareto and spec.pareto_weights:
+        t = time.perf_counter()
+        z = result.z
+        for w in sorted(spec.pareto_weights):
+            r = pd.optimize(
+                problem.with_weights([w]),
+                optimizer=optimizer,
+                z0=z,
+                max_iter=o["max_iter"],
+                rtol=o["rtol"],
+                gtol=o["gtol"],
+                progress=False,
+            )
+            front_z.append((w, r.z, r.converged))
+            say(f"front: cost weight {w:g}: {r.history[-1]['iteration']} iterations, {r.reason}")
+        front_z.append((float(problem.weights[0]), result.z, result.converged))
+        timings["pareto_s"] = time.perf_counter() - t
+    front = []
+    if front_z:
+        t = time.perf_counter()
+        terms = pd.evaluate(problem, jnp.stack([jnp.asarray(z) for _, z, _ in front_z]))  # one compiled call
+        timings["pareto_evaluate_s"] = time.perf_counter() - t
+        front = sorted(
+            [
+                dict(
+                    weight=w,
+                    response=float(r),
+                    cost=float(c[0]),
+                    converged=bool(ok),
+                    z=np.asarray(z).tolist(),
+                )
+                for (w, z, ok), r, c in zip(front_z, terms.response, terms.costs)
+            ],
+            key=lambda e: e["weight"],
+        )
+    v = spec.verification
+    t = time.perf_counter()
+    designs = {"symmetric": result.initial_z, "optimum": result.z}
+    first = spec.objective["quantities"][0]
+    check = pd.monte_carlo_check(
+        problem,
+        designs,
+        n_samples=v["n_samples"],
+        batches=v["batches"],
+        key=jax.random.key(v["seed"]),
+        save_every=v["save_every"],
+        series=[first] if spec.objective["kind"] in ("std", "variance") else [],
+    )
+    series = check.pop("series")
+    timings["monte_carlo_s"] = time.perf_counter() - t
+    opt = check["designs"]["optimum"]
+    say(
+        f"Monte Carlo ({v['n_samples']} samples per design): objective {check['designs']['symmetric']['mc']:.6g} "
+        f"-> {opt['mc']:.6g}, improvement {opt['improvement_in_se']:.1f} standard errors"
+    )
+    return DesignStudy(
+        problem=problem, result=result, check=check, front=front, series=series, timings=timings
+    )
+
+
+# ------------------------------------------------------------------------------------------------ outputs
+
+
+def convergence_figure(study: DesignStudy):
+    h = study.result.history
+    it = [e["iteration"] for e in h]
+    with plots.mpl.rc_context(plots.STYLE):
+        fig, (a, b) = plots.plt.subplots(1, 2, figsize=(9, 3.4))
+        a.plot(it, [e["objective"] for e in h], "o-")
+        a.set(xlabel="iteration", ylabel="objective J (1 at the start + cost weights)", title="objective")
+        b.semilogy(it, [max(e["gradient_norm"], 1e-300) for e in h], "o-")
+        b.set(xlabel="iteration", ylabel="projected gradient norm", title="gradient")
+        fig.tight_layout()
+    return fig
+
+
+def variables_figure(study: DesignStudy):
+    problem = study.problem
+    start = problem.space.physical(jnp.asarray(study.result.initial_z))
+    opt = problem.space.physical(jnp.asarray(study.result.z))
+    n = len(problem.space.variables)
+    with plots.mpl.rc_context(plots.STYLE):
+        fig, axes = plots.plt.subplots(1, n, figsize=(4.2 * n, 3.4), squeeze=False)
+        for ax, v, x0, x1 in zip(axes[0], problem.space.variables, start, opt):
+            idx = np.arange(np.size(x0))
+            ax.bar(idx - 0.2, np.ravel(x0), 0.4, label="symmetric start")
+            ax.bar(idx + 0.2, np.ravel(x1), 0.4, label="optimum")
+            ax.set(
+                xlabel="bolt" if v.size else "",
+                ylabel=f"{v.name} ({v.unit})" if v.unit else v.name,
+                yscale="log" if v.transform.name == "log" else "linear",
+            )
+            ax.set_xticks(idx)
+            ax.legend(loc="best")
+        fig.tight_layout()
+    return fig
+
+
+def response_figure(study: DesignStudy):
+    ((quantity, data),) = study.series.items()
+    factor, unit = plots.scaled(study.problem.names.unit(quantity))
+    with plots.mpl.rc_context(plots.STYLE):
+        fig, ax = plots.plt.subplots(figsize=(8, 3.6))
+        for name, d in data.items():
+            (line,) = ax.plot(d["times"], factor * d["sl"], label=f"{name}: SL")
+            every = max(len(d["times"]) // 40, 1)
+            ax.errorbar(
+                d["times"][::every],
+                factor * d["mc"][::every],
+                yerr=2 * factor * d["mc_se"][::every],
+                fmt="o",
+                ms=3,
+                color=line.get_color(),
+                label=f"{name}: Monte Carlo (2 s.e.)",
+            )
+        ax.set(
+            xlabel="time (s)",
+            ylabel=f"std of {quantity} ({unit})",
+            title="symmetric bolts against the optimum: SL lines, Monte Carlo markers",
+        )
+        ax.legend(loc="best")
+        fig.tight_layout()
+    return fig
+
+
+def pareto_figure(study: DesignStudy):
+    problem = study.problem
+    r_factor, r_unit = plots.scaled(problem.objective.describe(problem.names)["unit"])
+    cost = problem.costs[0].describe()
+    c_factor, c_unit = (1e-9, "GN/m") if cost["unit"] == "N/m" else (1.0, cost["unit"])
+    with plots.mpl.rc_context(plots.STYLE):
+        fig, ax = plots.plt.subplots(figsize=(6, 4))
+        costs = [c_factor * e["cost"] for e in study.front]
+        responses = [r_factor * e["response"] for e in study.front]
+        ax.plot(costs, responses, "o-", label="optimum for each cost weight w")
+        for e, x, y in zip(study.front, costs, responses):
+            ax.annotate(f"w={e['weight']:g}", (x, y), textcoords="offset points", xytext=(4, 4))
+        start = study.result.history[0]
+        ax.plot(
+            c_factor * start["costs"][0], r_factor * start["response"], "s", ms=8, label="symmetric start"
+        )
+        ax.set(
+            xlabel=f"{cost['name'].split(' (')[0]} ({c_unit})",
+            ylabel=f"objective ({r_unit})",
+            title="Pareto front: response against cost",
+        )
+        ax.legend(loc="best")
+        fig.tight_layout()
+    return fig
+
+
+def summary(study: DesignStudy, spec: DesignSpec) -> dict:
+    problem, r = study.problem, study.result
+    desc = problem.describe()
+    start, end = r.history[0], r.history[-1]
+    units = {v["name"]: v["unit"] for v in desc["variables"]}
+    opt = study.check["designs"]["optimum"]
+    return dict(
+        objective=dict(
+            desc["objective"],
+            symmetric=start["response"],
+            optimum=end["response"],
+            relative_change=end["response"] / start["response"] - 1.0,
+        ),
+        costs=[
+            dict(c, symmetric=s, optimum=e) for c, s, e in zip(desc["costs"], start["costs"], end["costs"])
+        ],
+        total_objective=dict(symmetric=start["objective"], optimum=end["objective"], unit="1 (normalized)"),
+        variables={
+            k: dict(
+                symmetric=start["variables"][k],
+                optimum=end["variables"][k],
+                unit=units.get(k.split("[")[0], ""),
+            )
+            for k in end["variables"]
+        },
+        convergence=dict(
+            iterations=end["iteration"],
+            converged=r.converged,
+            reason=r.reason,
+            gradient_norm=end["gradient_norm"],
+        ),
+        monte_carlo=dict(
+            study.check,
+            statement=(
+                f"Monte Carlo confirms the optimum: the objective drops by {opt['improvement']:.4g} "
+                f"{desc['objective']['unit']} ({100 * opt['relative_improvement']:.2f} %), "
+                f"{opt['improvement_in_se']:.1f} standard errors of the paired batch differences"
+            ),
+        ),
+        pareto_front=[{k: e[k] for k in ("weight", "response", "cost", "converged")} for e in study.front],
+        horizon=desc["horizon"],
+        timings_s=study.timings,
+        units=dict(response=desc["objective"]["unit"], cost=[c["unit"] for c in desc["costs"]], timings="s"),
+    )
+
+
+def write_outputs(study: DesignStudy, spec: DesignSpec, out, parameter_data: dict) -> list[Path]:
+    """Figures, the optimized parameter file (loadable by ``pgtjax run --params``) and ``summary.json``."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    written = [
+        plots.save(convergence_figure(study), out / "convergence.png"),
+        plots.save(variables_figure(study), out / "variables.png"),
+    ]
+    if study.series:
+        written.append(plots.save(response_figure(study), out / "response.png"))
+    if study.front:
+        written.append(plots.save(pareto_figure(study), out / "pareto.png"))
+    data = optimized_parameter_data(parameter_data, study.problem, study.result.z)
+    header = (
+        "Optimized by pgtjax optimize: design variables "
+        + ", ".join(v.name for v in study.problem.space.variables)
+        + " set to the optimum."
+    )
+    written.append(write_text(out / "optimized_params.toml", _params.dumps_toml(data, header)))
+    written.append(write_json(out / "summary.json", summary(study, spec)))
+    return written
