@@ -24,10 +24,24 @@ from ._problem import DesignProblem
 HISTORY_FORMAT = "pgtjax-design-history/1"
 
 
+_DEFAULT = []
+
+
 def default_optimizer() -> optax.GradientTransformationExtraArgs:
     """L-BFGS with optax's zoom line search (strong Wolfe): the usual choice for a smooth deterministic
-    objective of a few dozen variables."""
-    return optax.lbfgs()
+    objective of a few dozen variables. The same object on every call: its functions are part of the
+    compiled update's cache key, so a second run (a resume, a weight sweep) reuses the compiled update."""
+    if not _DEFAULT:
+        _DEFAULT.append(optax.lbfgs())
+    return _DEFAULT[0]
+
+
+def _strongly_typed(state):
+    """The optimizer state with weakly typed scalars made strong: optax's line search starts with weak
+    scalars that its first update returns strong, which would compile the update a second time."""
+    return jax.tree.map(
+        lambda x: jnp.array(x, dtype=jnp.asarray(x).dtype) if eqx.is_array_like(x) else x, state
+    )
 
 
 @dataclass
@@ -214,13 +228,11 @@ def optimize(
     z = problem.space.project(problem.space.initial() if z0 is None else jnp.asarray(z0, jnp.float64))
     if z.shape != (problem.space.n,):
         raise ValueError(f"`z0` must have shape ({problem.space.n},), got {z.shape}")
-    state = optimizer.init(z)
+    state = _strongly_typed(optimizer.init(z))
     if resume:
         if history is None or not history.exists():
             raise ValueError(f"`resume` needs an existing `history` file, got {history!r}")
         entries, z, state, value, grad = _load(history, info, state)
-        if entries and entries[-1].get("stop"):
-            entries[-1].pop("stop")
         offset = entries[-1]["wall_s"] if entries else 0.0
         started -= offset
     else:

@@ -3,12 +3,14 @@ the ring's deformation along each ring-planet line of action at the moving mesh.
 
 from __future__ import annotations
 
+import math
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._system import Observables
+from .._system import Observables, check_count
 from ..models import planetary as pm
 from ..models.ring import ring_nodal_inverse
 from ._problem import Response
@@ -48,6 +50,12 @@ def ring_mesh_observables(p: pm.PlanetaryParams) -> Observables:
     return Observables(matrix, names=[f"ring_mesh{n + 1}" for n in range(len(angles))])
 
 
+def _wind_filter_covariance(params, system):
+    # a module-level function (not a lambda): responses built separately compare equal, so compiled
+    # solvers are reused between them (a resumed run, a second problem on the same model)
+    return pm.wind_filter_stationary_covariance(params, pm.layout(params))
+
+
 def planetary_response(
     p: pm.PlanetaryParams,
     *,
@@ -56,16 +64,20 @@ def planetary_response(
     save_every: int = 1,
     ring_mesh: bool = True,
     rtol: float = 1e-10,
+    step_multiple: int = 1,
 ) -> Response:
     """Response of the planetary train over ``periods`` carrier periods in steps of ``dt`` (s): each design
     starts at its own static equilibrium with the wind filter in its stationary distribution (thesis 3.7);
-    ``ring_mesh`` adds :func:`ring_mesh_observables` (elastic ring); ``rtol``: SL's per-step tolerance."""
+    ``ring_mesh`` adds :func:`ring_mesh_observables` (elastic ring); ``rtol``: SL's per-step tolerance.
+    The number of steps is the nearest multiple of ``save_every`` and ``step_multiple`` (a Monte Carlo
+    save interval, say)."""
     if isinstance(periods, bool) or not isinstance(periods, (int, float)) or not 0.0 < periods <= 100.0:
         raise ValueError(f"`periods` must be a number of carrier periods in (0, 100], got {periods!r}")
     if isinstance(dt, bool) or not isinstance(dt, (int, float)) or not 0.0 < dt <= 0.1:
         raise ValueError(f"`dt` must be a time step in (0, 0.1] s, got {dt!r}")
     period = 2.0 * np.pi / float(p.mesh.carrier_speed)
-    n_steps = max(int(round(periods * period / dt / save_every)), 1) * save_every
+    multiple = math.lcm(check_count("save_every", save_every), check_count("step_multiple", step_multiple))
+    n_steps = max(int(round(periods * period / dt / multiple)), 1) * multiple
     observe = ring_mesh and p.ring_model == "elastic"
     return Response(
         build=pm.build,

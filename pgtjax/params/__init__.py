@@ -37,18 +37,31 @@ def _toml_value(value) -> str:
     raise ValueError(f"cannot write {value!r} ({type(value).__name__}) to a parameter file")
 
 
+def _is_table_array(value) -> bool:
+    return isinstance(value, list) and bool(value) and all(isinstance(v, dict) for v in value)
+
+
+def _table_lines(name: str, table: dict, brackets: str) -> list[str]:
+    lines = ["", f"{brackets[0]}{name}{brackets[1]}"]
+    for key, value in table.items():
+        if isinstance(value, dict) or _is_table_array(value):
+            raise ValueError(f"nested table {name}.{key} is not supported")
+        lines.append(f"{key} = {_toml_value(value)}")
+    return lines
+
+
 def dumps_toml(data: dict, header: str = "") -> str:
-    """TOML text of a parameter dict (top-level values, then one table per sub-dict; numbers, strings,
-    booleans and lists of them): what :func:`read_toml` reads back to the same dict."""
+    """TOML text of a parameter dict (top-level values, then one table per sub-dict and an array of tables
+    per list of dicts; numbers, strings, booleans and lists of them): what :func:`read_toml` reads back to
+    the same dict."""
     lines = [f"# {line}" for line in header.splitlines()]
-    tables = {k: v for k, v in data.items() if isinstance(v, dict)}
     for key, value in data.items():
-        if not isinstance(value, dict):
+        if not isinstance(value, dict) and not _is_table_array(value):
             lines.append(f"{key} = {_toml_value(value)}")
-    for name, table in tables.items():
-        lines += ["", f"[{name}]"]
-        for key, value in table.items():
-            if isinstance(value, dict):
-                raise ValueError(f"nested table [{name}.{key}] is not supported")
-            lines.append(f"{key} = {_toml_value(value)}")
+    for name, value in data.items():
+        if isinstance(value, dict):
+            lines += _table_lines(name, value, "[]")
+        elif _is_table_array(value):
+            for table in value:
+                lines += _table_lines(name, table, ("[[", "]]"))
     return "\n".join(lines) + "\n"

@@ -18,6 +18,7 @@ from .. import design as pd
 from .. import params as _params
 from .. import plots
 from .._files import write_json, write_text
+from .._system import check_count
 from ..models import planetary as pm
 
 SPEC_SECTIONS = ("horizon", "variables", "objective", "costs", "optimizer", "verification", "pareto")
@@ -140,6 +141,11 @@ def load_spec(source=None) -> DesignSpec:
         {"n_samples": (int, 2000), "batches": (int, 10), "save_every": (int, 10), "seed": (int, 0)},
         "[verification]",
     )
+    try:
+        pd._problem.check_samples(verification["n_samples"], verification["batches"])
+        check_count("save_every", verification["save_every"])
+    except ValueError as err:
+        raise ValueError(f"design spec [verification]: {err}") from None
     pareto = _entry("pareto", data.get("pareto", {}), {"weights": (list, [])}, "[pareto]")
     if not all(isinstance(w, NUMBER) and not isinstance(w, bool) and w >= 0 for w in pareto["weights"]):
         raise ValueError(f"design spec [pareto]: `weights` must be numbers >= 0, got {pareto['weights']!r}")
@@ -198,7 +204,10 @@ def build_problem(params: pm.PlanetaryParams, spec: DesignSpec) -> pd.DesignProb
     except ValueError as err:
         raise ValueError(f"design spec [objective]: {err}") from None
     costs = [pd._objectives.COSTS[c["kind"]](weight=float(c["weight"])) for c in spec.costs]
-    response = pd.planetary_response(params, periods=spec.periods, dt=spec.dt)
+    # a whole number of Monte Carlo save intervals (10022 steps per carrier period -> 10020 at save_every 10)
+    response = pd.planetary_response(
+        params, periods=spec.periods, dt=spec.dt, step_multiple=spec.verification["save_every"]
+    )
     try:
         return pd.DesignProblem(pd.DesignSpace(params, variables), response, objective, costs)
     except ValueError as err:
@@ -340,6 +349,7 @@ def convergence_figure(study: DesignStudy):
 
 
 def variables_figure(study: DesignStudy):
+    """Each variable at the symmetric start and at the optimum (bars from zero, one panel per variable)."""
     problem = study.problem
     start = problem.space.physical(jnp.asarray(study.result.initial_z))
     opt = problem.space.physical(jnp.asarray(study.result.z))
@@ -347,16 +357,15 @@ def variables_figure(study: DesignStudy):
     with plots.mpl.rc_context(plots.STYLE):
         fig, axes = plots.plt.subplots(1, n, figsize=(4.2 * n, 3.4), squeeze=False)
         for ax, v, x0, x1 in zip(axes[0], problem.space.variables, start, opt):
+            factor, unit = (1e-9, "GN/m") if v.unit == "N/m" else (1.0, v.unit)
             idx = np.arange(np.size(x0))
-            ax.bar(idx - 0.2, np.ravel(x0), 0.4, label="symmetric start")
-            ax.bar(idx + 0.2, np.ravel(x1), 0.4, label="optimum")
-            ax.set(
-                xlabel="bolt" if v.size else "",
-                ylabel=f"{v.name} ({v.unit})" if v.unit else v.name,
-                yscale="log" if v.transform.name == "log" else "linear",
-            )
+            ax.bar(idx - 0.2, factor * np.ravel(x0), 0.4, label="symmetric start")
+            ax.bar(idx + 0.2, factor * np.ravel(x1), 0.4, label="optimum")
+            ax.axhline(factor * v.lower, color="0.5", ls=":", lw=1)
+            ax.set(xlabel="bolt" if v.size else "", ylabel=f"{v.name} ({unit})" if unit else v.name)
+            ax.set_ylim(0.0, 1.25 * factor * max(float(np.max(x0)), float(np.max(x1))))
             ax.set_xticks(idx)
-            ax.legend(loc="best")
+            ax.legend(loc="upper left", ncol=2)
         fig.tight_layout()
     return fig
 
@@ -383,7 +392,8 @@ def response_figure(study: DesignStudy):
             ylabel=f"std of {quantity} ({unit})",
             title="symmetric bolts against the optimum: SL lines, Monte Carlo markers",
         )
-        ax.legend(loc="best")
+        ax.set_ylim(0.0, 1.3 * ax.get_ylim()[1])  # room for the legend above the curves
+        ax.legend(loc="upper left", ncol=2)
         fig.tight_layout()
     return fig
 
