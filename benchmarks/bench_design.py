@@ -6,9 +6,10 @@ from its own static equilibrium over ``--periods`` carrier periods (1.0 = 10,022
 1. One value-and-gradient against one forward value of the objective, calls alternating (forward, gradient,
    forward, ...), medians over ``--repeats`` runs; the first (compiling) calls reported apart.
 2. The full L-BFGS optimization (``pd.optimize``, the default optimizer) from the symmetric design. A warm-up
-   run of two iterations compiles its jitted functions (the update compiles twice: optax's initial
-   line-search state holds weak-typed scalars, the state after one update strong ones); the timed run then
-   reuses them (the same optimizer object is passed to both, so that the compiled update is found again). Evaluations are counted exactly:
+   run of two iterations compiles its jitted functions; the timed run then reuses them (the same
+   optimizer object is passed to both, so that the compiled update is found again; results/design.json was
+   measured before pgtjax made the line search's initial state strongly typed, when the update compiled
+   twice per run). Evaluations are counted exactly:
    the problem's ``value`` is wrapped to report every forward pass and every reverse pass to the host
    (``jax.debug.callback``), which also records the time and value of each evaluation.
 3. Gradient-free baselines on the same objective, coordinates and bounds, using the forward function
