@@ -44,8 +44,15 @@ def test_optimize_writes_its_outputs_and_resumes(tmp_path, capsys):
     assert main(args) == 0
     printed = capsys.readouterr().out
     assert "standard errors" in printed and "symmetric" in printed
-    for name in ("history.json", "optimized_params.toml", "summary.json", "convergence.png", "variables.png",
-                 "response.png", "pareto.png"):
+    for name in (
+        "history.json",
+        "optimized_params.toml",
+        "summary.json",
+        "convergence.png",
+        "variables.png",
+        "response.png",
+        "pareto.png",
+    ):
         assert (out / name).is_file(), name
     summary = json.loads((out / "summary.json").read_text())
     assert summary["objective"]["unit"] == "m" and summary["units"]["cost"] == ["N/m"]
@@ -54,8 +61,11 @@ def test_optimize_writes_its_outputs_and_resumes(tmp_path, capsys):
     # the optimized file is a parameter file that pgtjax run --params reads, with the optimum's values
     optimum = pm.load_params(out / "optimized_params.toml")
     variables = summary["variables"]
-    np.testing.assert_allclose(np.asarray(optimum.ring.k_support_tangential),
-                               [variables[f"k_tangential[{i}]"]["optimum"] for i in range(6)], rtol=1e-14)
+    np.testing.assert_allclose(
+        np.asarray(optimum.ring.k_support_tangential),
+        [variables[f"k_tangential[{i}]"]["optimum"] for i in range(6)],
+        rtol=1e-14,
+    )
     assert all(not name.startswith(".") for name in (p.name for p in out.iterdir()))  # no partial files
     # resume: a higher iteration limit continues the same history
     history = json.loads((out / "history.json").read_text())["iterations"]

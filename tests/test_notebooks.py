@@ -23,6 +23,7 @@ SMALL = {
 # Figures each notebook shows (the same at every size), one image output each.
 EXPECTED_FIGURES = {
     "back_to_back": 2,  # run-up stiffness/TE/acceleration panels, STFT
+    "design": 6,  # bolt elasticities, convergence, bolt stiffnesses, SL/MC response, Pareto front, scaling sweep
     "gear_pair": 6,  # three regimes x (moments against time, PDF of the mesh deflection)
     "planetary": 6,  # DOFs, appendix DOFs, contact point, meshing forces, their zoom, rim-thickness sweep
     "ring": 4,  # mode shapes, contact-point and mid-node responses, speed sweep

@@ -23,6 +23,7 @@ from ._objectives import Variance as Variance
 from ._optimize import OptimizeResult as OptimizeResult
 from ._optimize import default_optimizer as default_optimizer
 from ._optimize import optimize as optimize
+from ._optimize import pareto_front as pareto_front
 from ._planetary import bolt_variables as bolt_variables
 from ._planetary import planetary_response as planetary_response
 from ._planetary import ring_mesh_observables as ring_mesh_observables

@@ -244,16 +244,11 @@ def optimize(
     if history is not None:
         _save(history, info, optimizer_name, entries, status, z, state, value, grad)
 
-    from tqdm.auto import tqdm
+    bar = None
+    if progress:  # imported only when asked for: tqdm.auto warns at import in a kernel without ipywidgets
+        from tqdm.auto import tqdm
 
-    bar = tqdm(
-        total=max_iter,
-        initial=entries[-1]["iteration"],
-        disable=not progress,
-        desc="optimize",
-        unit="it",
-        leave=True,
-    )
+        bar = tqdm(total=max_iter, initial=entries[-1]["iteration"], desc="optimize", unit="it", leave=True)
     try:
         while True:
             k = entries[-1]["iteration"]
@@ -276,12 +271,14 @@ def optimize(
                     f"{entry['variables']} (its SL fixed point failed); tighten the bounds or the step"
                 )
             entries.append(entry)
-            bar.update(1)
-            bar.set_postfix(J=f"{entry['objective']:.6g}", grad=f"{entry['gradient_norm']:.2e}")
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix(J=f"{entry['objective']:.6g}", grad=f"{entry['gradient_norm']:.2e}")
             if history is not None:
                 _save(history, info, optimizer_name, entries, status, z, state, value, grad)
     finally:
-        bar.close()
+        if bar is not None:
+            bar.close()
     if history is not None:
         _save(history, info, optimizer_name, entries, status, z, state, value, grad)
     return OptimizeResult(
@@ -292,3 +289,43 @@ def optimize(
         reason=status["reason"],
         problem=info,
     )
+
+
+def pareto_front(
+    problem: DesignProblem, weights, *, z0=None, optimizer=None, say=None, **optimize_options
+) -> list[dict]:
+    """Optima of ``problem`` for each cost weight in ``weights`` (one cost: a list of numbers; several: a list
+    of weight vectors), each started from ``z0`` (default: the base design; an optimum found already is a
+    good start), then all evaluated in one ``vmap``-ed call (:func:`pgtjax.design.evaluate`). Returns one
+    dict per weight, sorted as given: ``weight``, ``response``, ``costs`` (in their units), ``converged``,
+    ``iterations``, ``reason``, ``z``. ``optimize_options`` go to :func:`optimize`."""
+    from ._problem import evaluate
+
+    optimizer = default_optimizer() if optimizer is None else optimizer
+    runs = []
+    for w in weights:
+        r = optimize(
+            problem.with_weights(np.atleast_1d(w)),
+            optimizer=optimizer,
+            z0=z0,
+            progress=False,
+            **optimize_options,
+        )
+        runs.append((w, r))
+        if say is not None:
+            say(f"front: cost weight {w}: {r.history[-1]['iteration']} iterations, {r.reason}")
+    if not runs:
+        return []
+    terms = evaluate(problem, jnp.stack([jnp.asarray(r.z) for _, r in runs]))  # one compiled call
+    return [
+        dict(
+            weight=w,
+            response=float(resp),
+            costs=np.asarray(c).tolist(),
+            converged=r.converged,
+            iterations=r.history[-1]["iteration"],
+            reason=r.reason,
+            z=np.asarray(r.z).tolist(),
+        )
+        for (w, r), resp, c in zip(runs, terms.response, terms.costs)
+    ]

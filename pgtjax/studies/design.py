@@ -271,42 +271,24 @@ def run_design(params=None, spec=None, *, history=None, resume=False, pareto=Tru
         f"optimum after {result.history[-1]['iteration']} iterations ({result.reason}): "
         f"objective {result.history[0]['objective']:.6g} -> {result.value:.6g}"
     )
-    front_z = []
+    front = []
     if pareto and spec.pareto_weights:
         t = time.perf_counter()
-        z = result.z
-        for w in sorted(spec.pareto_weights):
-            r = pd.optimize(
-                problem.with_weights([w]),
-                optimizer=optimizer,
-                z0=z,
-                max_iter=o["max_iter"],
-                rtol=o["rtol"],
-                gtol=o["gtol"],
-                progress=False,
-            )
-            front_z.append((w, r.z, r.converged))
-            say(f"front: cost weight {w:g}: {r.history[-1]['iteration']} iterations, {r.reason}")
-        front_z.append((float(problem.weights[0]), result.z, result.converged))
-        timings["pareto_s"] = time.perf_counter() - t
-    front = []
-    if front_z:
-        t = time.perf_counter()
-        terms = pd.evaluate(problem, jnp.stack([jnp.asarray(z) for _, z, _ in front_z]))  # one compiled call
-        timings["pareto_evaluate_s"] = time.perf_counter() - t
-        front = sorted(
-            [
-                dict(
-                    weight=w,
-                    response=float(r),
-                    cost=float(c[0]),
-                    converged=bool(ok),
-                    z=np.asarray(z).tolist(),
-                )
-                for (w, z, ok), r, c in zip(front_z, terms.response, terms.costs)
-            ],
-            key=lambda e: e["weight"],
+        # each weight starts from the main optimum; the main weight's optimum joins the front as found
+        weights = sorted({*spec.pareto_weights, float(problem.weights[0])})
+        front = pd.pareto_front(
+            problem,
+            weights,
+            z0=result.z,
+            optimizer=optimizer,
+            say=say,
+            max_iter=o["max_iter"],
+            rtol=o["rtol"],
+            gtol=o["gtol"],
         )
+        for e in front:
+            e["cost"] = e["costs"][0]
+        timings["pareto_s"] = time.perf_counter() - t
     v = spec.verification
     t = time.perf_counter()
     designs = {"symmetric": result.initial_z, "optimum": result.z}
@@ -343,6 +325,8 @@ def convergence_figure(study: DesignStudy):
         a.plot(it, [e["objective"] for e in h], "o-")
         a.set(xlabel="iteration", ylabel="objective J (1 at the start + cost weights)", title="objective")
         b.semilogy(it, [max(e["gradient_norm"], 1e-300) for e in h], "o-")
+        for ax in (a, b):
+            ax.xaxis.set_major_locator(plots.mpl.ticker.MaxNLocator(integer=True))
         b.set(xlabel="iteration", ylabel="projected gradient norm", title="gradient")
         fig.tight_layout()
     return fig
