@@ -85,10 +85,28 @@ def test_bounds_are_never_violated(transform):
         )
         values = np.array([[e["variables"]["k1"], e["variables"]["k2"]] for e in result.history])
         assert np.all(values >= lower) and np.all(values <= upper)
+        # the coordinates themselves stay in their bounds (the physical values are clipped by the maps
+        # anyway, so the check above alone could not fail)
+        lo, hi = chain_problem(1e-5, lower, upper, transform).space.bounds()
+        zs = np.array([e["z"] for e in result.history])
+        assert np.all(zs >= lo) and np.all(zs <= hi)
         params = result.params
         assert lower <= float(params.k1) <= upper and lower <= float(params.k2) <= upper
         if transform != "box":  # the box map approaches its bound only asymptotically
             np.testing.assert_allclose(values[-1], [upper, upper], rtol=1e-6)
+
+
+def test_gradient_at_a_bound_points_inside():
+    # at the upper bound, a cost that favours smaller k must show a positive gradient (the map's clip against
+    # rounding must not zero it, or a variable that reached its bound could never leave it)
+    problem = chain_problem(10.0, 0.5, 5.0, "log")
+    z_top = jnp.asarray(problem.space.bounds()[1])
+    grad = eqx.filter_jit(jax.grad(lambda z: problem.value(z)))(z_top)
+    k = 5.0
+    expected = (
+        -C / k**2 * np.array([1.0, 0.5]) + 10.0
+    ) * k  # d/dlog k of c (1/k1 + 1/(2 k2)) + lam (k1 + k2)
+    np.testing.assert_allclose(grad, expected, rtol=1e-8)
 
 
 def test_resume_continues_the_same_history(tmp_path):

@@ -33,14 +33,15 @@ def write_spec(path, data):
     return path
 
 
-def test_optimize_writes_its_outputs_and_resumes(tmp_path, capsys):
+def test_optimize_writes_its_outputs_and_resumes(tmp_path, capsys, monkeypatch):
     spec = write_spec(tmp_path / "design.toml", tiny_spec())
     params = embedded.read_toml(embedded.path("planetary.toml"))
     params["ring"]["n_elements"] = 6  # a bolt at every node: a small, fast model
     params_file = tmp_path / "params.toml"
     params_file.write_text(embedded.dumps_toml(params))
-    out = tmp_path / "out"
-    args = ["optimize", "--params", str(params_file), "--design", str(spec), "--out", str(out)]
+    out = tmp_path / "pgtjax-output" / "design"  # the default --out, relative to the working folder
+    monkeypatch.chdir(tmp_path)
+    args = ["optimize", "--params", str(params_file), "--design", str(spec)]
     assert main(args) == 0
     printed = capsys.readouterr().out
     assert "standard errors" in printed and "symmetric" in printed
@@ -56,7 +57,9 @@ def test_optimize_writes_its_outputs_and_resumes(tmp_path, capsys):
         assert (out / name).is_file(), name
     summary = json.loads((out / "summary.json").read_text())
     assert summary["objective"]["unit"] == "m" and summary["units"]["cost"] == ["N/m"]
-    assert summary["monte_carlo"]["designs"]["optimum"]["improvement_in_se"] is not None
+    check = summary["monte_carlo"]["designs"]["optimum"]
+    assert np.isfinite(check["improvement_in_se"])
+    np.testing.assert_allclose(check["improvement_in_se"], check["improvement"] / check["improvement_se"])
     assert len(summary["pareto_front"]) == 2
     # the optimized file is a parameter file that pgtjax run --params reads, with the optimum's values
     optimum = pm.load_params(out / "optimized_params.toml")
@@ -71,7 +74,13 @@ def test_optimize_writes_its_outputs_and_resumes(tmp_path, capsys):
     history = json.loads((out / "history.json").read_text())["iterations"]
     assert main(args + ["--resume", "--max-iter", "5", "--no-pareto"]) == 0
     resumed = json.loads((out / "history.json").read_text())["iterations"]
-    assert resumed[: len(history)] == history and len(resumed) >= len(history)
+    assert resumed[: len(history)] == history
+    assert [e["iteration"] for e in resumed] == list(range(len(resumed)))
+    # it went on from the saved iterate (or stopped at once, converged there)
+    assert (
+        len(resumed) > len(history)
+        or "below" in json.loads((out / "history.json").read_text())["status"]["reason"]
+    )
 
 
 @pytest.mark.parametrize(

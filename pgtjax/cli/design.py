@@ -12,25 +12,27 @@ from ._types import positive_int
 
 def _run_optimize(args) -> int:
     from .. import params as embedded
+    from ..design._problem import check_samples
     from ..models import planetary as pm
     from ..studies import design as study
+    from . import _check_writable
 
     params_file = args.params if args.params is not None else embedded.path("planetary.toml")
     data = embedded.read_toml(params_file)
     params = pm.load_params(data)
     spec = study.load_spec(args.design)
     if args.samples is not None:
-        if args.samples % spec.verification["batches"]:
-            raise ValueError(
-                f"`--samples` ({args.samples}) must be a multiple of the spec's "
-                f"{spec.verification['batches']} batches"
-            )
+        try:
+            check_samples(args.samples, spec.verification["batches"])
+        except ValueError as err:
+            raise ValueError(f"`--samples`: {err}") from None
         spec.verification["n_samples"] = args.samples
     if args.max_iter is not None:
         spec.optimizer["max_iter"] = args.max_iter
     if args.periods is not None:
         spec.periods = args.periods
     out = args.out or Path("pgtjax-output") / "design"
+    _check_writable(out)  # created now: the history is written from the first iteration on
     history = out / "history.json"
     if args.resume and not history.exists():
         raise ValueError(f"`--resume`: no history to resume in {str(out)!r} (run without --resume first)")

@@ -82,6 +82,14 @@ class SmoothMax(AbstractReduction):
 REDUCTIONS = {"mean": TimeMean, "smooth_max": SmoothMax}
 
 
+def _label(over: AbstractReduction) -> str:
+    """The reduction's name with its settings (part of a problem's description, which resume compares)."""
+    parts = [f"order {over.order:g}"] if isinstance(over, SmoothMax) else []
+    if over.start:
+        parts.append(f"t >= {over.start:g} s")
+    return over.name + (f" ({', '.join(parts)})" if parts else "")
+
+
 # --------------------------------------------------------------------------------------------- objectives
 
 
@@ -140,7 +148,7 @@ class Std(AbstractObjective):
         unit = names.unit(self.quantities[0])
         stat = "std" if self.power == 1 else "variance"
         return dict(
-            name=f"{self.over.name} {stat} of {', '.join(self.quantities)}",
+            name=f"{_label(self.over)} {stat} of {', '.join(self.quantities)}",
             unit=unit if self.power == 1 else f"({unit})^2",
         )
 
@@ -168,14 +176,16 @@ class DynamicFactor(AbstractObjective):
     def __call__(self, result, system, names):
         idx = jnp.asarray([result.contact(m) for m in self.meshes])
         mean, std = jnp.abs(result.force_mean[:, idx]), result.force_std[:, idx]
-        return self.over(result.times, (mean + self.n_sigma * std) / jnp.mean(mean, axis=0, keepdims=True))
+        window = (result.times >= self.over.start).astype(mean.dtype)[:, None]
+        load = jnp.sum(window * mean, axis=0, keepdims=True) / jnp.sum(window)  # the window's mean load
+        return self.over(result.times, (mean + self.n_sigma * std) / load)
 
     def check(self, names):
         _check_meshes("DynamicFactor", self.meshes, names)
 
     def describe(self, names):
         return dict(
-            name=f"{self.over.name} dynamic factor (mean + {self.n_sigma:g} std) of {', '.join(self.meshes)}",
+            name=f"{_label(self.over)} dynamic factor (mean + {self.n_sigma:g} std) of {', '.join(self.meshes)}",
             unit="1",
         )
 
@@ -199,7 +209,9 @@ class ContactLoss(AbstractObjective):
         _check_meshes("ContactLoss", self.meshes, names)
 
     def describe(self, names):
-        return dict(name=f"{self.over.name} contact-loss probability of {', '.join(self.meshes)}", unit="1")
+        return dict(
+            name=f"{_label(self.over)} contact-loss probability of {', '.join(self.meshes)}", unit="1"
+        )
 
 
 class Custom(AbstractObjective):

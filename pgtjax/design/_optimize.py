@@ -135,7 +135,14 @@ def _state_path(history: Path) -> Path:
 def _save(history: Path, problem_info, optimizer_name, entries, status, z, state, value, grad):
     leaves = jax.tree.leaves(state)
     arrays = {f"leaf{i}": np.asarray(x) for i, x in enumerate(leaves)}
-    arrays.update(z=np.asarray(z), value=np.asarray(value), grad=np.asarray(grad))
+    # the iterate's number and z tie this state to the history's last entry (the two files are written one
+    # after the other; an interruption between them is detected on resume)
+    arrays.update(
+        z=np.asarray(z),
+        value=np.asarray(value),
+        grad=np.asarray(grad),
+        iteration=np.asarray(entries[-1]["iteration"]),
+    )
     write_atomic(_state_path(history), lambda p: np.savez(p, **arrays))
     write_json(
         history,
@@ -150,7 +157,7 @@ def _save(history: Path, problem_info, optimizer_name, entries, status, z, state
 
 
 def _comparable(info: dict) -> dict:
-    return {k: info[k] for k in ("variables", "objective", "costs", "horizon")}
+    return {k: info.get(k) for k in ("variables", "objective", "costs", "horizon", "scales", "base")}
 
 
 def _load(history: Path, problem_info, state_template):
@@ -176,13 +183,18 @@ def _load(history: Path, problem_info, state_template):
     if any(r.shape != jnp.shape(x) for r, x in zip(restored, leaves)):
         raise ValueError(f"cannot resume: {str(_state_path(history))!r} holds another optimizer's state")
     state = jax.tree.unflatten(treedef, restored)
-    return (
-        data["iterations"],
-        jnp.asarray(saved["z"]),
-        state,
-        jnp.asarray(saved["value"]),
-        jnp.asarray(saved["grad"]),
-    )
+    entries = data["iterations"]
+    if (
+        not entries
+        or "iteration" not in saved
+        or int(saved["iteration"]) != entries[-1]["iteration"]
+        or not np.array_equal(np.asarray(saved["z"]), np.asarray(entries[-1]["z"]))
+    ):
+        raise ValueError(
+            f"cannot resume: {str(_state_path(history))!r} and {str(history)!r} do not hold the same iterate "
+            "(a run interrupted between their writes); start again without resume"
+        )
+    return entries, jnp.asarray(saved["z"]), state, jnp.asarray(saved["value"]), jnp.asarray(saved["grad"])
 
 
 def optimize(
@@ -225,9 +237,12 @@ def optimize(
     labels = problem.space.labels()
     started = time.perf_counter()
 
-    z = problem.space.project(problem.space.initial() if z0 is None else jnp.asarray(z0, jnp.float64))
-    if z.shape != (problem.space.n,):
-        raise ValueError(f"`z0` must have shape ({problem.space.n},), got {z.shape}")
+    z = problem.space.initial() if z0 is None else jnp.asarray(z0, jnp.float64)
+    if z.shape != (problem.space.n,) or not bool(jnp.all(jnp.isfinite(z))):
+        raise ValueError(f"`z0` must be finite with shape ({problem.space.n},), got shape {z.shape}")
+    if resume and z0 is not None:
+        raise ValueError("`z0` and `resume` exclude each other: a resumed run continues from its history")
+    z = problem.space.project(z)
     state = _strongly_typed(optimizer.init(z))
     if resume:
         if history is None or not history.exists():

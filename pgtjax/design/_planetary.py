@@ -84,9 +84,7 @@ def planetary_response(
         dt=float(dt),
         n_steps=n_steps,
         save_every=save_every,
-        initial_covariance=lambda params, system: pm.wind_filter_stationary_covariance(
-            params, pm.layout(params)
-        ),
+        initial_covariance=_wind_filter_covariance,
         observables=ring_mesh_observables if observe else None,
         rtol=rtol,
     )

@@ -3,6 +3,7 @@ an objective on the SL result and weighted costs on the design."""
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Callable, Sequence
 
 import equinox as eqx
@@ -144,9 +145,17 @@ class DesignProblem(eqx.Module):
         self.costs = check_costs(costs)
         self.names = response.names(space.base)
         self.objective.check(self.names)
+        start = getattr(getattr(self.objective, "over", None), "start", 0.0)
+        t_end = response.dt * response.n_steps
+        if not 0.0 <= start < t_end:
+            raise ValueError(
+                f"the objective's `start` ({start!r} s) must lie in [0, {t_end:g}) s, the horizon"
+            )
         self.weights = jnp.asarray([c.weight for c in self.costs], jnp.float64).reshape(-1)
         if scales is not None:
             self.scales = jnp.asarray(scales, jnp.float64)
+            if not bool(jnp.all(jnp.isfinite(self.scales) & (self.scales > 0))):
+                raise ValueError(f"`scales` must be finite and > 0, got {np.asarray(self.scales).tolist()}")
         elif normalize:
             params = space.params(space.initial())
             system, result = response.moments(params)  # throws SolverError with when and where
@@ -166,8 +175,8 @@ class DesignProblem(eqx.Module):
     def with_weights(self, weights) -> DesignProblem:
         """The same problem with other cost weights (same shapes: no recompilation)."""
         w = jnp.asarray(weights, jnp.float64).reshape(self.weights.shape)
-        if not bool(jnp.all(w >= 0.0)):
-            raise ValueError(f"cost weights must be >= 0, got {np.asarray(w).tolist()}")
+        if not bool(jnp.all(jnp.isfinite(w) & (w >= 0.0))):
+            raise ValueError(f"cost weights must be finite and >= 0, got {np.asarray(w).tolist()}")
         return eqx.tree_at(lambda p: p.weights, self, w)
 
     def terms(self, z) -> Terms:
@@ -192,12 +201,21 @@ class DesignProblem(eqx.Module):
             objective=self.objective.describe(self.names),
             costs=[dict(c.describe(), weight=float(w)) for c, w in zip(self.costs, np.asarray(self.weights))],
             scales=np.asarray(self.scales).tolist(),
+            base=_digest(self.space.base),
             horizon=dict(
                 dt_s=self.response.dt,
                 n_steps=self.response.n_steps,
                 t_end_s=self.response.dt * self.response.n_steps,
             ),
         )
+
+
+def _digest(tree) -> str:
+    """A fingerprint of a parameter pytree's values and structure, to recognise the same model on resume."""
+    h = hashlib.sha256(str(jax.tree.structure(tree)).encode())
+    for leaf in jax.tree.leaves(tree):
+        h.update(np.ascontiguousarray(np.asarray(leaf, dtype=np.float64)).tobytes())
+    return h.hexdigest()[:16]
 
 
 @eqx.filter_jit
@@ -284,7 +302,7 @@ def monte_carlo_check(
             entry.update(
                 improvement=float(diff.mean()),
                 improvement_se=se,
-                improvement_in_se=float(diff.mean() / se) if se > 0 else float("inf"),
+                improvement_in_se=float(diff.mean() / se) if se > 0 else float("nan"),
                 relative_improvement=float(diff.mean() / per_batch[first].mean()),
             )
         out[name] = entry

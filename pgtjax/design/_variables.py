@@ -19,8 +19,10 @@ _PATH = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)*$")
 
 
 def _inside(x, lower, upper):
-    """``x`` kept in ``[lower, upper]`` against the last rounding of a map evaluated on a projected bound."""
-    return jnp.clip(x, lower, upper)
+    """``x`` kept in ``[lower, upper]`` against the last rounding of a map evaluated on a projected bound,
+    with the map's own derivative (a plain clip would have zero derivative there, and a coordinate that
+    reached its bound could not leave it nor show a gradient pointing inside)."""
+    return x + jax.lax.stop_gradient(jnp.clip(x, lower, upper) - x)
 
 
 class AbstractTransform(eqx.Module):
@@ -200,13 +202,16 @@ class DesignSpace(eqx.Module):
         variables = tuple(variables)
         if not variables:
             raise ValueError("a design needs at least one variable")
-        seen, sizes = set(), []
+        seen, names, sizes = set(), set(), []
         for v in variables:
             if not isinstance(v, Variable):
                 raise ValueError(f"design variables must be pgtjax.design.Variable, got {type(v).__name__}")
             if v.path in seen:
                 raise ValueError(f"design variable {v.name!r}: path {v.path!r} appears twice")
             seen.add(v.path)
+            if v.name in names:
+                raise ValueError(f"design variable name {v.name!r} appears twice (names label the history)")
+            names.add(v.name)
             leaf = get_leaf(base, v.path)
             if (
                 isinstance(leaf, bool)

@@ -226,7 +226,7 @@ def optimized_parameter_data(data: dict, problem: pd.DesignProblem, z) -> dict:
     for v, x in zip(problem.space.variables, problem.space.physical(jnp.asarray(z))):
         table, key = pm.PARAMETER_FILE_KEYS[v.path]
         values = [float(a) for a in np.asarray(x).reshape(-1)]
-        out[table][key] = values if v.size is not None else values[0]
+        out[table][key] = values if len(values) > 1 else values[0]
     return out
 
 
@@ -408,6 +408,20 @@ def pareto_figure(study: DesignStudy):
     return fig
 
 
+def _verdict(opt: dict, unit: str) -> str:
+    """What the Monte Carlo check says of the optimum, in words that follow its sign and size."""
+    z = opt["improvement_in_se"]
+    size = (
+        f"{abs(opt['improvement']):.4g} {unit} ({100 * abs(opt['relative_improvement']):.2f} %), "
+        f"{abs(z):.1f} standard errors of the paired batch differences"
+    )
+    if z > 3:
+        return f"Monte Carlo confirms the optimum: the objective drops by {size}"
+    if z < -3:
+        return f"Monte Carlo contradicts SL: at the optimum the objective rises by {size}"
+    return f"Monte Carlo does not resolve a change: {size} (not more than 3)"
+
+
 def summary(study: DesignStudy, spec: DesignSpec) -> dict:
     problem, r = study.problem, study.result
     desc = problem.describe()
@@ -439,14 +453,7 @@ def summary(study: DesignStudy, spec: DesignSpec) -> dict:
             reason=r.reason,
             gradient_norm=end["gradient_norm"],
         ),
-        monte_carlo=dict(
-            study.check,
-            statement=(
-                f"Monte Carlo confirms the optimum: the objective drops by {opt['improvement']:.4g} "
-                f"{desc['objective']['unit']} ({100 * opt['relative_improvement']:.2f} %), "
-                f"{opt['improvement_in_se']:.1f} standard errors of the paired batch differences"
-            ),
-        ),
+        monte_carlo=dict(study.check, statement=_verdict(opt, desc["objective"]["unit"])),
         pareto_front=[{k: e[k] for k in ("weight", "response", "cost", "converged")} for e in study.front],
         horizon=desc["horizon"],
         timings_s=study.timings,
