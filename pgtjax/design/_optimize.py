@@ -311,7 +311,7 @@ def pareto_front(
 ) -> list[dict]:
     """Optima of ``problem`` for each cost weight in ``weights`` (one cost: a list of numbers; several: a list
     of weight vectors), each started from ``z0`` (default: the base design; an optimum found already is a
-    good start), then all evaluated in one ``vmap``-ed call (:func:`pgtjax.design.evaluate`). Returns one
+    good start), then all evaluated in one compiled call (:func:`pgtjax.design.evaluate`). Returns one
     dict per weight, sorted as given: ``weight``, ``response``, ``costs`` (in their units), ``converged``,
     ``iterations``, ``reason``, ``z``. ``optimize_options`` go to :func:`optimize`."""
     from ._problem import evaluate
