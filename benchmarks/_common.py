@@ -11,6 +11,8 @@ from pathlib import Path
 
 import jax
 
+from pgtjax._files import write_text
+
 RESULTS = Path(__file__).parent / "results"
 
 
@@ -66,9 +68,10 @@ def timed_interleaved(fns: dict, *args, repeats: int = 3) -> dict:
     return out
 
 
-def write(name: str, payload: dict) -> Path:
+def write(name: str, payload: dict, machine_info: dict | None = None) -> Path:
+    """``results/<name>.json`` (atomically) with the machine (``machine_info``: measured in another process,
+    e.g. one with forced host devices) and the date."""
     RESULTS.mkdir(exist_ok=True)
     path = RESULTS / f"{name}.json"
-    payload = dict(machine=machine(), date=time.strftime("%Y-%m-%d %H:%M:%S"), **payload)
-    path.write_text(json.dumps(payload, indent=2))
-    return path
+    payload = dict(machine=machine_info or machine(), date=time.strftime("%Y-%m-%d %H:%M:%S"), **payload)
+    return write_text(path, json.dumps(payload, indent=2))

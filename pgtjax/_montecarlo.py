@@ -8,18 +8,24 @@ chunk the samples are a batch (``vmap``-style matrix products) and time is a ``l
 parallel update between chunks), and histograms of chosen quantities are counted on the fly.
 
 Noise of sample ``s`` in saved block ``j`` is ``normal(fold_in(fold_in(key, s), j))``: a pure function of the key
-and the indices, so the same key gives the same statistics (to rounding) whatever the chunk size.
+and the indices, so the same key gives the same statistics (to rounding) whatever the chunk size, the number of
+devices (each batch is sharded over a one-axis device mesh, each device reducing its own samples) and of
+processes (``jax.distributed``; the per-process statistics are gathered and merged at the end). The running
+statistics can be checkpointed and a run resumed to exactly the uninterrupted result.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._checkpoint import checkpoint_file, load_checkpoint, save_checkpoint, tree_digest
 from ._eigenbasis import eigen_initial_state, eigen_physical, eigen_propagator, eigen_sample_step
 from ._failure import SolverError, raise_if_nonfinite
 from ._loop import saved_scan
@@ -32,6 +38,7 @@ from ._newmark import (
     sample_step,
     snapshot,
 )
+from ._parallel import device_mesh, local_devices
 from ._results import MonteCarloResult
 from ._system import (
     Observables,
@@ -70,8 +77,7 @@ def quantity_names(system: System, observables: Observables | None = None) -> li
     return names
 
 
-@eqx.filter_jit
-def _chunk(
+def _sample_statistics(
     system,
     key,
     sample_ids,
@@ -103,7 +109,7 @@ def _chunk(
         )(sample_keys)
         x0 = x0 + z @ init_factor.T
     state = initial_sample_state(system, s0, x0[:, :n], x0[:, n:])
-    total = jnp.sum(weights)
+    total = jnp.maximum(jnp.sum(weights), 1.0)  # a device given only padding (weights 0) returns zeros
     clearance = system.contact_clearance()
     if eigen is None:  # physical coordinates
         prop = integrator.init(system, dt)  # None if K or C varies in time
@@ -182,6 +188,91 @@ def _chunk(
     return saved, carry[2]
 
 
+_SAMPLE_AXIS = "samples"
+
+
+@eqx.filter_jit
+def _chunk(system, key, sample_ids, weights, *args, mesh, **static):
+    """:func:`_sample_statistics` of the samples ``sample_ids`` (n_devices, per_device), one row per device
+    of ``mesh``: every device computes the statistics of its own row, with no communication; the results
+    keep a leading device axis and are merged on the host like chunks."""
+    arrays, rest = eqx.partition((system, key, args), eqx.is_array)
+
+    def local(arrays, ids, w):
+        system, key, args = eqx.combine(arrays, rest)
+        out = _sample_statistics(system, key, ids[0], w[0], *args, **static)
+        return jax.tree.map(lambda a: a[None], out)
+
+    spec = jax.sharding.PartitionSpec(_SAMPLE_AXIS)
+    sharded = jax.shard_map(
+        local, mesh=mesh, in_specs=(jax.sharding.PartitionSpec(), spec, spec), out_specs=spec, check_vma=False
+    )
+    return sharded(arrays, sample_ids, weights)
+
+
+class _Moments(NamedTuple):
+    """Running statistics of a set of samples (host arrays): sample count, means and centred sums of squares
+    per saved time, contact-loss and histogram counts, centred sums of cross products, failed solves."""
+
+    count: float
+    mean: np.ndarray
+    m2: np.ndarray
+    loss: np.ndarray
+    counts: np.ndarray
+    comoment: np.ndarray
+    bad: float
+
+    def merge(self, other: _Moments, cov_columns: Sequence[int]) -> _Moments:
+        """Chan et al.'s parallel combination (exact up to rounding for any split of the samples)."""
+        bad = self.bad + other.bad
+        if other.count == 0:
+            return self._replace(bad=bad)
+        if self.count == 0:
+            return other._replace(bad=bad)
+        n = self.count + other.count
+        delta = other.mean - self.mean
+        d_sel = delta[:, list(cov_columns)]
+        weight = self.count * other.count / n
+        return _Moments(
+            count=n,
+            mean=self.mean + delta * (other.count / n),
+            m2=self.m2 + other.m2 + delta**2 * weight,
+            loss=self.loss + other.loss,
+            counts=self.counts + other.counts,
+            comoment=self.comoment + other.comoment + np.einsum("ti,tj->tij", d_sel, d_sel) * weight,
+            bad=bad,
+        )
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        return {f: np.asarray(getattr(self, f), dtype=np.float64) for f in self._fields}
+
+    @classmethod
+    def from_arrays(cls, arrays) -> _Moments:
+        return cls(
+            **{f: (float(arrays[f]) if f in ("count", "bad") else np.asarray(arrays[f])) for f in cls._fields}
+        )
+
+
+def _checkpoint_path(checkpoint, resume: bool, n_proc: int, proc: int) -> Path | None:
+    """This process's checkpoint file, checked before any computation."""
+    path = checkpoint_file(checkpoint, resume)
+    if path is not None and n_proc > 1:
+        path = path.with_name(f"{path.stem}.process-{proc}-of-{n_proc}.npz")
+    return path
+
+
+def _gather_processes(moments: _Moments, cov_columns) -> _Moments:
+    """Merge every process's statistics, in process order; every process gets the merged result."""
+    from jax.experimental import multihost_utils
+
+    gathered = {k: np.asarray(multihost_utils.process_allgather(v)) for k, v in moments.arrays().items()}
+    merged = None
+    for p in range(jax.process_count()):
+        part = _Moments.from_arrays({k: v[p] for k, v in gathered.items()})
+        merged = part if merged is None else merged.merge(part, cov_columns)
+    return merged
+
+
 def monte_carlo(
     system: System,
     *,
@@ -204,6 +295,11 @@ def monte_carlo(
     propagation: str = "auto",
     throw: bool = True,
     covariance_dofs: Sequence[str] | str | None = None,
+    devices=None,
+    distributed: bool = True,
+    checkpoint=None,
+    checkpoint_every: int = 1,
+    resume: bool = False,
 ) -> MonteCarloResult:
     """Monte Carlo statistics of the nonlinear system driven by sampled white noise.
 
@@ -212,7 +308,7 @@ def monte_carlo(
             :func:`pgtjax.solve_moments`; with ``initial_covariance`` each sample starts from a Gaussian draw.
         n_samples: number of samples (>= 2).
         key: a ``jax.random`` key (e.g. ``jax.random.key(0)``).
-        chunk_size: samples per compiled batch (bounds memory: about ``chunk_size * 4 n`` floats).
+        chunk_size: samples per compiled batch and device (bounds memory: about ``chunk_size * 4 n`` floats).
         histograms: ``{quantity: bin_edges}`` with quantity names from :func:`quantity_names`
             (e.g. ``"delta:mesh"``); all edge arrays must have the same length.
         histogram_times: times (s) at which the histograms are reported (nearest saved time).
@@ -223,6 +319,17 @@ def monte_carlo(
             ``"auto"`` (default): eigen where the basis is accepted, else physical.
         covariance_dofs: as in :func:`pgtjax.solve_moments`: the sample covariance (1/(N-1)) of the selected
             DOFs' displacements and velocities, ``result.covariance`` (n_times, 2m, 2m).
+        devices: the devices of this process the samples are sharded over (``jax.sharding`` mesh, one batch of
+            ``chunk_size`` samples per device at a time); default all of ``jax.local_devices()``.
+        distributed: when JAX's distributed runtime is initialized (``jax.distributed.initialize``, more than
+            one process), split the samples over all processes and return the merged statistics on every
+            process; ``False``: this process runs all ``n_samples`` alone.
+        checkpoint: a ``.npz`` path where the running statistics and the position in the sample sequence are
+            written atomically every ``checkpoint_every`` rounds (a round: ``chunk_size`` samples on each
+            device) and at the end; with several processes each writes its own file
+            (``<stem>.process-<p>-of-<n>.npz``).
+        resume: continue from ``checkpoint`` (written by the same run: system, key, sizes, devices and
+            processes; ``ValueError`` otherwise). The result equals that of an uninterrupted run.
         throw: raise :class:`pgtjax.SolverError` naming the first time and quantity where a statistic is not
             finite, or if a contact solve did not converge; with ``False`` the result is returned as it is
             (``unconverged`` counts the failed solves).
@@ -270,18 +377,49 @@ def monte_carlo(
     if len({e.size for e in edges}) > 1:
         raise ValueError("all histogram edge arrays must have the same length")
     hist_edges = jnp.asarray(np.stack(edges)) if edges else jnp.zeros((0, 2))
-
-    chunk = min(chunk_size, n_samples)
-    n_chunks = -(-n_samples // chunk)
-    total_n = 0.0
-    mean = m2 = loss = counts = comoment = None
     cov_columns = covariance_index(system, covariance_dofs)  # u then v: the columns of q, too
-    bad = 0.0
-    bar = _progress_bar(n_samples, progress)
-    for c in range(n_chunks):
-        ids = np.arange(c * chunk, (c + 1) * chunk)
+    devices = local_devices(devices)
+    n_proc, proc = (jax.process_count(), jax.process_index()) if distributed else (1, 0)
+    n_dev = len(devices)
+    mesh = device_mesh(devices, _SAMPLE_AXIS)
+    # round r: n_proc x n_dev rows of per_device consecutive sample ids, row (p, d) on device d of process p
+    per_device = min(chunk_size, -(-n_samples // (n_proc * n_dev)))
+    round_size = n_proc * n_dev * per_device
+    n_rounds = -(-n_samples // round_size)
+    checkpoint = _checkpoint_path(checkpoint, resume, n_proc, proc)
+    checkpoint_every = check_count("checkpoint_every", checkpoint_every)
+    description = dict(
+        run=tree_digest(system, key, u0, v0, init_factor, observables, hist_edges, integrator),
+        quantities=names,
+        histograms=list(histograms),
+        covariance_columns=list(cov_columns),
+        propagation="physical" if eigen is None else "eigen",
+        t0=float(t0),
+        dt=float(dt),
+        n_steps=n_steps,
+        save_every=save_every,
+        n_samples=int(n_samples),
+        samples_per_device=per_device,
+        devices=n_dev,
+        processes=n_proc,
+        process=proc,
+    )
+    moments, first_round = None, 0
+    if resume:
+        saved = load_checkpoint(checkpoint, description, what="monte_carlo")
+        first_round = int(saved.pop("next_round"))
+        moments = _Moments.from_arrays(saved)
+    bar = _progress_bar(n_samples, progress and proc == 0)
+    if bar is not None and first_round:
+        bar.update(min(first_round * round_size, n_samples))
+    for r in range(first_round, n_rounds):
+        ids = (
+            r * round_size
+            + proc * n_dev * per_device
+            + np.arange(n_dev * per_device).reshape(n_dev, per_device)
+        )
         weights = (ids < n_samples).astype(np.float64)
-        (m_c, m2_c, loss_c, counts_c, co_c), bad_c = _chunk(
+        parts, bad = _chunk(
             system,
             key,
             jnp.asarray(ids),
@@ -294,33 +432,26 @@ def monte_carlo(
             hist_edges,
             observables,
             eigen,
+            mesh=mesh,
             n_steps=n_steps,
             save_every=save_every,
             integrator=integrator,
             hist_columns=tuple(hist_columns),
             cov_columns=cov_columns,
         )
-        n_c = float(weights.sum())
-        m_c, m2_c = np.asarray(m_c), np.asarray(m2_c)
-        co_c = np.asarray(co_c)
-        if mean is None:
-            mean, m2, loss, counts, comoment = m_c, m2_c, np.asarray(loss_c), np.asarray(counts_c), co_c
-        else:  # Chan et al. parallel combination of means and centred sums of squares (and of products)
-            delta = m_c - mean
-            d_sel = delta[:, list(cov_columns)]
-            comoment = (
-                comoment + co_c + np.einsum("ti,tj->tij", d_sel, d_sel) * (total_n * n_c / (total_n + n_c))
-            )
-            mean = mean + delta * (n_c / (total_n + n_c))
-            m2 = m2 + m2_c + delta**2 * (total_n * n_c / (total_n + n_c))
-            loss = loss + np.asarray(loss_c)
-            counts = counts + np.asarray(counts_c)
-        total_n += n_c
-        bad += float(bad_c)
+        parts, bad = [np.asarray(a) for a in parts], np.asarray(bad)
+        for d in range(n_dev):
+            part = _Moments(float(weights[d].sum()), *(a[d] for a in parts), bad=float(bad[d]))
+            moments = part if moments is None else moments.merge(part, cov_columns)
+        if checkpoint is not None and ((r + 1) % checkpoint_every == 0 or r + 1 == n_rounds):
+            save_checkpoint(checkpoint, dict(moments.arrays(), next_round=np.asarray(r + 1)), description)
         if bar is not None:
-            bar.update(int(n_c))
+            bar.update(min(round_size, n_samples - r * round_size))
     if bar is not None:
         bar.close()
+    if n_proc > 1:
+        moments = _gather_processes(moments, cov_columns)
+    total_n, mean, m2, loss, counts, comoment, bad = moments
     std = np.sqrt(np.maximum(m2, 0.0) / (total_n - 1.0))
     nc = system.n_contacts
     cut = np.cumsum([n, n, nc, nc])

@@ -61,6 +61,8 @@ def main(argv=None) -> int:
         return 0
     out = getattr(args, "out", None)
     where = f"; files already in {str(out)!r} may be incomplete" if out is not None else ""
+    if getattr(args, "resume", None) is not None:
+        where += "; the same command with --resume continues from the last checkpoint"
 
     def interrupted(signum, frame):
         # leave from the handler itself: a KeyboardInterrupt raised inside a callback (JAX's garbage-collection

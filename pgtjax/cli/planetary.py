@@ -10,6 +10,7 @@ import json
 import time
 from pathlib import Path
 
+from ._scale import add_scale_out_options, checkpoint_path, start_processes
 from ._types import csv_names, nonneg_int, positive_float, positive_int
 
 
@@ -57,6 +58,7 @@ def _add_planetary_options(p: argparse.ArgumentParser, quick: bool) -> None:
     p.add_argument("--chunk-size", type=nonneg_int, default=5000, help="MC samples per compiled batch")
     p.add_argument("--out", type=Path, default=None, help="output folder (default: pgtjax-output/planetary)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
+    add_scale_out_options(p)
 
 
 def _params(args):
@@ -70,19 +72,13 @@ def _run_planetary(args) -> int:
 
     from ..studies import planetary as study
 
+    if args.resume and not args.samples:
+        raise ValueError("`--resume` continues a Monte Carlo; it needs `--samples` >= 2")
+    process = start_processes(args)  # before any JAX computation
     params = _params(args)
     out = args.out or Path("pgtjax-output") / "planetary"
     criteria = csv_names(args.criteria)
-    print(
-        study.format_header(
-            params, periods=args.periods, dt=args.dt, criteria=criteria, n_samples=args.samples
-        )
-    )
-    start = time.perf_counter()
-    step = lambda msg: print(f"[{time.perf_counter() - start:7.1f} s] {msg}", flush=True)  # noqa: E731
-    step("SL + moment recursion" + (" and Monte Carlo" if args.samples else ""))
-    result = study.run_study(
-        params,
+    study_kw = dict(
         n_samples=args.samples,
         dt=args.dt,
         periods=args.periods,
@@ -91,8 +87,24 @@ def _run_planetary(args) -> int:
         criteria=criteria,
         key=jax.random.key(args.seed),
         chunk_size=args.chunk_size,
-        progress=not args.quiet,
+        checkpoint=checkpoint_path(args, out) if args.samples else None,
+        checkpoint_every=args.checkpoint_every,
+        resume=args.resume,
     )
+    if process:  # another process of a distributed run: its share of the Monte Carlo, no output
+        study.run_study(params, progress=False, **study_kw)
+        return 0
+    print(
+        study.format_header(
+            params, periods=args.periods, dt=args.dt, criteria=criteria, n_samples=args.samples
+        )
+    )
+    if jax.process_count() > 1:
+        print(f"Monte Carlo split over {jax.process_count()} processes ({len(jax.devices())} devices in all)")
+    start = time.perf_counter()
+    step = lambda msg: print(f"[{time.perf_counter() - start:7.1f} s] {msg}", flush=True)  # noqa: E731
+    step("SL + moment recursion" + (" and Monte Carlo" if args.samples else ""))
+    result = study.run_study(params, progress=not args.quiet, **study_kw)
     sweeps = None
     if not args.no_sweeps:
         sweeps = study.standard_sweeps(

@@ -11,10 +11,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._checkpoint import checkpoint_file, load_checkpoint, save_checkpoint, tree_digest
 from .._deterministic import static_equilibrium
 from .._failure import SolverError
 from .._linearization import solve_moments
 from .._montecarlo import monte_carlo
+from .._parallel import device_mesh, local_devices
 from .._system import check_count, validate_time_grid
 from ._objectives import AbstractCost, AbstractObjective, Names, _series, as_objective, check_costs
 from ._variables import DesignSpace
@@ -218,23 +220,87 @@ def _digest(tree) -> str:
     return h.hexdigest()[:16]
 
 
+_DESIGN_AXIS = "designs"
+
+
 @eqx.filter_jit
-def _batch_terms(problem: DesignProblem, zs, batch_size):
-    return jax.lax.map(problem.terms, zs, batch_size=batch_size)
+def _batch_terms(problem: DesignProblem, zs, batch_size, *, mesh):
+    """``problem.terms`` of ``zs`` (n_devices, per_device, n_z): each device of ``mesh`` runs its own row in a
+    ``lax.map`` loop, with no communication."""
+    arrays, rest = eqx.partition(problem, eqx.is_array)
+
+    def local(arrays, z):
+        terms = jax.lax.map(eqx.combine(arrays, rest).terms, z[0], batch_size=batch_size)
+        return jax.tree.map(lambda a: a[None], terms)
+
+    spec = jax.sharding.PartitionSpec(_DESIGN_AXIS)
+    sharded = jax.shard_map(
+        local, mesh=mesh, in_specs=(jax.sharding.PartitionSpec(), spec), out_specs=spec, check_vma=False
+    )
+    return sharded(arrays, zs)
 
 
-def evaluate(problem: DesignProblem, designs, *, batch_size: int | None = None) -> Terms:
-    """Objective parts of many designs in one compiled call (sweeps, Pareto fronts): ``designs`` is
-    (n_designs, n_z) coordinates. ``batch_size``: designs ``vmap``-ed together within the call (``lax.map``
-    over batches); default None runs them one after the other in the same compiled loop. On the 2-core CPU a
-    ``vmap`` of 14 planetary designs deadlocked inside XLA's CPU runtime in two of seven runs (every thread
-    waiting, no CPU), so batching is opt-in. Returns :class:`Terms` with a leading design axis."""
-    zs = jnp.asarray(designs, jnp.float64)
-    if zs.ndim != 2 or zs.shape[1] != problem.space.n:
-        raise ValueError(f"`designs` must have shape (n_designs, {problem.space.n}), got {zs.shape}")
+def evaluate(
+    problem: DesignProblem,
+    designs,
+    *,
+    batch_size: int | None = None,
+    devices=None,
+    group_size: int | None = None,
+    checkpoint=None,
+    resume: bool = False,
+) -> Terms:
+    """Objective parts of many designs (sweeps, Pareto fronts, design batches): ``designs`` is (n_designs, n_z)
+    coordinates. Returns :class:`Terms` with a leading design axis.
+
+    The designs are split over ``devices`` (default all of ``jax.local_devices()``); on each device they run
+    one after the other in one compiled loop, or ``vmap``-ed ``batch_size`` at a time (on the 2-core CPU a
+    ``vmap`` of 14 planetary designs deadlocked inside XLA's CPU runtime in two of seven runs, so batching is
+    opt-in). ``group_size``: designs per device per compiled call (default: all at once, or 1 with a
+    checkpoint). ``checkpoint``: a ``.npz`` rewritten atomically after every group with the terms so far;
+    ``resume=True`` continues from it (same problem, designs and split required)."""
+    zs = np.asarray(designs, dtype=np.float64)
+    if zs.ndim != 2 or zs.shape[1] != problem.space.n or zs.shape[0] < 1:
+        raise ValueError(f"`designs` must have shape (n_designs >= 1, {problem.space.n}), got {zs.shape}")
+    if not np.all(np.isfinite(zs)):
+        raise ValueError("`designs` must be finite")
     if batch_size is not None:
         batch_size = check_count("batch_size", batch_size)
-    return _batch_terms(problem, zs, batch_size)
+    devices = local_devices(devices)
+    n, n_dev = zs.shape[0], len(devices)
+    path = checkpoint_file(checkpoint, resume)
+    if group_size is not None:
+        per_device = min(check_count("group_size", group_size), -(-n // n_dev))
+    else:
+        per_device = 1 if path is not None else -(-n // n_dev)
+    group = n_dev * per_device
+    n_groups = -(-n // group)
+    padded = np.concatenate([zs, np.repeat(zs[-1:], n_groups * group - n, axis=0)])  # repeats are dropped
+    description = dict(
+        problem=tree_digest(problem),
+        designs=tree_digest(zs),
+        n_designs=n,
+        devices=n_dev,
+        designs_per_device=per_device,
+    )
+    fields = Terms.__dataclass_fields__
+    done: dict[str, list] = {f: [] for f in fields}
+    first = 0
+    if resume:
+        saved = load_checkpoint(path, description, what="evaluate")
+        first = int(saved.pop("next_group"))
+        done = {f: [saved[f]] for f in fields}
+    mesh = device_mesh(devices, _DESIGN_AXIS)
+    for g in range(first, n_groups):
+        block = padded[g * group : (g + 1) * group].reshape(n_dev, per_device, -1)
+        terms = _batch_terms(problem, jnp.asarray(block), batch_size, mesh=mesh)
+        for f in fields:
+            value = np.asarray(getattr(terms, f))
+            done[f].append(value.reshape((group,) + value.shape[2:]))
+        if path is not None:
+            so_far = {f: np.concatenate(done[f]) for f in fields}
+            save_checkpoint(path, dict(so_far, next_group=np.asarray(g + 1)), description)
+    return Terms(**{f: jnp.asarray(np.concatenate(done[f])[:n]) for f in fields})
 
 
 def check_samples(n_samples, batches) -> tuple[int, int]:

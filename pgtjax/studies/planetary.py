@@ -141,8 +141,12 @@ def run_study(
     key=None,
     chunk_size=5000,
     progress=True,
+    checkpoint=None,
+    checkpoint_every=1,
+    resume=False,
 ) -> PlanetaryStudy:
     """SL (each criterion) and MC over ``periods`` carrier periods; ``n_samples = 0`` skips MC.
+    ``checkpoint``, ``checkpoint_every``, ``resume``: as in :func:`pgtjax.monte_carlo`.
 
     MC is saved about ``n_saves`` times and SL ``sl_refine`` times as often (:func:`_grid`;
     :meth:`PlanetaryStudy.sl_on_mc_grid` gives SL on MC's grid)."""
@@ -168,6 +172,9 @@ def run_study(
             chunk_size=chunk_size,
             progress=progress,
             save_every=mc_every,
+            checkpoint=checkpoint,
+            checkpoint_every=checkpoint_every,
+            resume=resume,
             **kw,
         )
     settings = dict(

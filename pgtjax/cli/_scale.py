@@ -1,0 +1,67 @@
+"""Options shared by the Monte Carlo commands for running beyond one device and one process, and across
+interruptions: checkpoints, resume, and JAX's distributed runtime."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from ._types import positive_int
+
+CHECKPOINT_NAME = "monte_carlo.checkpoint.npz"
+
+
+def add_scale_out_options(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("checkpoints and several processes")
+    g.add_argument(
+        "--checkpoint",
+        type=Path,
+        default=None,
+        help=f"Monte Carlo checkpoint (.npz), rewritten atomically after every --checkpoint-every batches "
+        f"(default: {CHECKPOINT_NAME} in the output folder)",
+    )
+    g.add_argument(
+        "--checkpoint-every", type=positive_int, default=1, help="batches between checkpoints (default 1)"
+    )
+    g.add_argument(
+        "--resume",
+        action="store_true",
+        help="continue the Monte Carlo of an interrupted run of the same command from its checkpoint",
+    )
+    g.add_argument(
+        "--distributed",
+        action="store_true",
+        help="split the Monte Carlo over the processes of a job started by SLURM or Open MPI "
+        "(jax.distributed.initialize detects them); process 0 prints and writes the outputs",
+    )
+    g.add_argument(
+        "--coordinator", default=None, help="HOST:PORT of process 0 (with --processes, --process-id)"
+    )
+    g.add_argument("--processes", type=positive_int, default=None, help="number of processes")
+    g.add_argument("--process-id", type=int, default=None, help="this process's index, 0 to --processes - 1")
+
+
+def checkpoint_path(args, out: Path) -> Path:
+    return args.checkpoint if args.checkpoint is not None else out / CHECKPOINT_NAME
+
+
+def start_processes(args) -> int:
+    """Join JAX's distributed runtime if asked to (before any JAX computation); returns this process's index
+    (0 when running alone). ``ValueError`` for an incomplete or inconsistent set of options."""
+    explicit = (args.coordinator, args.processes, args.process_id)
+    if all(v is None for v in explicit) and not args.distributed:
+        return 0
+    if any(v is None for v in explicit) and not all(v is None for v in explicit):
+        raise ValueError("`--coordinator`, `--processes` and `--process-id` must be given together")
+    if args.process_id is not None and not 0 <= args.process_id < args.processes:
+        raise ValueError(
+            f"`--process-id` must be in 0..{args.processes - 1} (--processes {args.processes}), "
+            f"got {args.process_id}"
+        )
+    import jax
+
+    if args.coordinator is None:
+        jax.distributed.initialize()  # SLURM / Open MPI: address, count and index from the environment
+    else:
+        jax.distributed.initialize(args.coordinator, num_processes=args.processes, process_id=args.process_id)
+    return jax.process_index()

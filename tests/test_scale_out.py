@@ -1,0 +1,178 @@
+"""Monte Carlo beyond one device and one process, and across interruptions: the statistics of a run sharded over
+four (forced) CPU devices, split over two ``jax.distributed`` processes, or killed after its second checkpoint and
+resumed, against the same run on one device in one go. Each case runs in fresh processes (tests/_mc_worker.py):
+the device count is fixed when JAX starts, and a killed process must really die."""
+
+import os
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import jax
+import numpy as np
+import pytest
+from _mc_worker import DESIGNS, FIELDS, arrays, run
+from test_design import chain_problem
+
+from pgtjax import design as pd
+
+WORKER = str(Path(__file__).with_name("_mc_worker.py"))
+TIMEOUT_S = 600
+
+
+def _env():
+    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    env["PYTHONPATH"] = os.pathsep.join([str(Path(__file__).parent), env.get("PYTHONPATH", "")])
+    return env
+
+
+def _worker(*args):
+    return subprocess.Popen(
+        [sys.executable, WORKER, *map(str, args)], env=_env(), stderr=subprocess.PIPE, text=True
+    )
+
+
+def _finish(proc):
+    _, err = proc.communicate(timeout=TIMEOUT_S)
+    return proc.returncode, err
+
+
+def _assert_same(got: dict, ref: dict, rtol: float):
+    for name in FIELDS:
+        a, b = np.asarray(got[name]), np.asarray(ref[name])
+        assert a.shape == b.shape and a.dtype == np.float64, name
+        scale = np.max(np.abs(b))
+        assert np.max(np.abs(a - b)) <= rtol * scale, (name, np.max(np.abs(a - b)) / scale)
+    np.testing.assert_array_equal(got["histogram"], ref["histogram"])
+    assert int(got["n_samples"]) == int(ref["n_samples"]) == 203
+
+
+@pytest.fixture(scope="module")
+def reference():
+    """The run on this process's one CPU device, all 203 samples in one batch."""
+    assert len(jax.local_devices()) == 1
+    return arrays(run(chunk_size=203))
+
+
+def test_sharded_over_four_devices_equals_one_device(tmp_path, reference):
+    out = tmp_path / "sharded.npz"
+    code, err = _finish(_worker("sharded", out))
+    assert code == 0, err
+    data = np.load(out)
+    one = {k[4:]: data[k] for k in data.files if k.startswith("one_")}
+    four = {k[5:]: data[k] for k in data.files if k.startswith("four_")}
+    _assert_same(four, one, 1e-12)
+    _assert_same(four, reference, 1e-12)
+    assert np.any(four["std_u"] > 0)
+    # design batches: 5 designs over 4 devices (2 per device) against one device
+    np.testing.assert_allclose(data["designs_four"], data["designs_one"], rtol=1e-12)
+    assert data["designs_four"].shape == (5,)
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_two_processes_equal_one_process(tmp_path, reference):
+    port = _free_port()
+    procs = [_worker("process", p, 2, port, tmp_path / f"p{p}.npz") for p in range(2)]
+    results = [_finish(p) for p in procs]
+    for code, err in results:
+        assert code == 0, err
+    for p in range(2):  # every process holds the merged statistics of all 203 samples
+        _assert_same(dict(np.load(tmp_path / f"p{p}.npz")), reference, 1e-12)
+
+
+def test_killed_after_second_checkpoint_resumes_to_the_uninterrupted_run(tmp_path):
+    checkpoint = tmp_path / "mc.npz"
+    code, err = _finish(_worker("killed", checkpoint))
+    assert code == -9, err  # SIGKILL right after the second checkpoint was written
+    with np.load(checkpoint) as saved:
+        assert int(saved["next_round"]) == 2 and float(saved["count"]) == 80.0  # 2 rounds of 40 of 203
+    resumed = arrays(run(chunk_size=40, checkpoint=checkpoint, resume=True))
+    uninterrupted = arrays(run(chunk_size=40))
+    _assert_same(resumed, uninterrupted, 0.0)  # the same merges in the same order: equal, not just close
+    with np.load(checkpoint) as final:
+        assert int(final["next_round"]) == 6 and float(final["count"]) == 203.0
+    again = arrays(run(chunk_size=40, checkpoint=checkpoint, resume=True))  # complete: nothing left to run
+    _assert_same(again, uninterrupted, 0.0)
+
+
+def test_design_batch_killed_after_second_checkpoint_resumes(tmp_path):
+    checkpoint = tmp_path / "designs.npz"
+    code, err = _finish(_worker("killed-designs", checkpoint))
+    assert code == -9, err
+    with np.load(checkpoint) as saved:
+        assert int(saved["next_group"]) == 2 and saved["value"].shape == (2,)  # one design per group
+    problem = chain_problem(0.01)
+    resumed = pd.evaluate(problem, DESIGNS, checkpoint=checkpoint, resume=True)
+    straight = pd.evaluate(problem, DESIGNS)
+    for field in ("value", "response", "costs", "converged"):
+        np.testing.assert_array_equal(getattr(resumed, field), getattr(straight, field))
+    assert resumed.value.shape == (5,) and resumed.value.dtype == np.float64
+    with pytest.raises(ValueError, match="designs: checkpoint"):  # other designs: refused
+        pd.evaluate(problem, DESIGNS[:4], checkpoint=checkpoint, resume=True)
+
+
+def test_resume_refuses_another_run_and_bad_paths(tmp_path):
+    checkpoint = tmp_path / "mc.npz"
+    run(chunk_size=100, checkpoint=checkpoint)
+    with pytest.raises(ValueError, match="samples_per_device"):
+        run(chunk_size=50, checkpoint=checkpoint, resume=True)
+    with pytest.raises(ValueError, match="run: checkpoint"):  # another key: the run's fingerprint differs
+        run(chunk_size=100, checkpoint=checkpoint, resume=True, key=jax.random.key(18))
+    with pytest.raises(ValueError, match="no checkpoint"):
+        run(checkpoint=tmp_path / "missing.npz", resume=True)
+    with pytest.raises(ValueError, match="needs a `checkpoint`"):
+        run(resume=True)
+    with pytest.raises(ValueError, match="ending in .npz"):
+        run(checkpoint=tmp_path / "mc.ckpt")
+    with pytest.raises(ValueError, match="does not exist"):
+        run(checkpoint=tmp_path / "nowhere" / "mc.npz")
+    (tmp_path / "foreign.npz").write_bytes(b"not a zip file")
+    with pytest.raises(ValueError, match="not a readable"):
+        run(checkpoint=tmp_path / "foreign.npz", resume=True)
+    np.savez(tmp_path / "other.npz", x=np.zeros(3))
+    with pytest.raises(ValueError, match="not a pgtjax checkpoint"):
+        run(checkpoint=tmp_path / "other.npz", resume=True)
+    with pytest.raises(ValueError, match="devices"):
+        run(devices=[])
+
+
+def test_cli_resume_after_an_interruption_gives_the_same_outputs(tmp_path, monkeypatch, capsys):
+    import json
+
+    import pgtjax._montecarlo as montecarlo_module
+    from pgtjax.cli import main
+
+    argv = ["run", "--samples", "60", "--chunk-size", "10", "--periods", "0.01", "--saves", "5"]
+    argv += ["--no-sweeps", "--no-sensitivities", "--quiet"]
+    assert main([*argv, "--out", str(tmp_path / "straight")]) == 0
+    save, calls = montecarlo_module.save_checkpoint, []
+
+    def interrupted_after_two(*args, **kwargs):
+        save(*args, **kwargs)
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(montecarlo_module, "save_checkpoint", interrupted_after_two)
+    out = tmp_path / "resumed"
+    with pytest.raises(KeyboardInterrupt):
+        main([*argv, "--out", str(out)])
+    assert not (out / "summary.json").exists()
+    monkeypatch.setattr(montecarlo_module, "save_checkpoint", save)
+    assert main([*argv, "--out", str(out), "--resume"]) == 0
+    straight = json.loads((tmp_path / "straight" / "summary.json").read_text())
+    resumed = json.loads((out / "summary.json").read_text())
+    assert resumed == straight and resumed["settings"]["n_samples"] == 60
+    capsys.readouterr()
+    assert main(["run", "--samples", "0", "--resume", "--out", str(tmp_path / "x")]) == 2
+    assert "--resume" in capsys.readouterr().err
+    assert main(["run", "--coordinator", "127.0.0.1:1", "--out", str(tmp_path / "x")]) == 2
+    assert "--processes" in capsys.readouterr().err
+    assert main(["run", *"--coordinator 127.0.0.1:1 --processes 2 --process-id 2".split()]) == 2
+    assert "--process-id" in capsys.readouterr().err
