@@ -40,6 +40,7 @@ import numpy as np
 from .. import params as _params
 from .. import plots
 from .._deterministic import simulate
+from .._files import write_atomic, write_text
 from .._modal import modal_analysis
 from .._results import Trajectory, save_results
 from ..models import back_to_back as bb
@@ -537,7 +538,8 @@ def write_outputs(study: BackToBackStudy, outdir) -> list[Path]:
         )
         written.append(save_results(outdir / f"{reg.name}_trajectory.npz", reg.trajectory, **attrs))
         path = outdir / f"{reg.name}_mesh.npz"
-        np.savez_compressed(path, units=np.array(json.dumps(MESH_UNITS)), **_mesh_arrays(reg))
+        arrays = _mesh_arrays(reg)
+        write_atomic(path, lambda p: np.savez_compressed(p, units=np.array(json.dumps(MESH_UNITS)), **arrays))
         written.append(path)
         written += _figures(reg, outdir, study.settings.get("stft_window_s", 0.1))
     summary = dict(
@@ -557,7 +559,7 @@ def write_outputs(study: BackToBackStudy, outdir) -> list[Path]:
         wall_s={r.name: r.wall_s for r in study.regimes},
     )
     path = outdir / "summary.json"
-    path.write_text(json.dumps(summary, indent=2))
+    write_text(path, json.dumps(summary, indent=2))
     written.append(path)
     plt.close("all")
     return written

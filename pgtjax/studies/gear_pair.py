@@ -20,6 +20,7 @@ import jax
 import numpy as np
 
 from .. import plots
+from .._files import write_text
 from .._linearization import solve_moments
 from .._modal import modal_analysis
 from .._montecarlo import monte_carlo
@@ -263,7 +264,7 @@ def write_outputs(study: GearPairStudy, outdir) -> list[Path]:
         },
     )
     path = outdir / "summary.json"
-    path.write_text(json.dumps(summary, indent=2))
+    write_text(path, json.dumps(summary, indent=2))
     written.append(path)
     return written
 

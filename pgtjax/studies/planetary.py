@@ -25,6 +25,7 @@ import numpy as np
 
 from .. import plots
 from .._deterministic import static_equilibrium
+from .._files import write_text
 from .._linearization import solve_moments
 from .._modal import modal_analysis
 from .._montecarlo import monte_carlo
@@ -153,7 +154,7 @@ def run_study(
     p = pm.default_params() if params is None else params
     criteria = tuple(criteria)
     if not criteria:
-        raise ValueError("`criteria` must name at least one SL criterion (force, energy, energy_origin)")
+        raise ValueError("`criteria` must name at least one SL criterion (force, energy)")
     if n_samples != 0:  # Monte Carlo needs two samples for a standard deviation
         try:
             check_count("n_samples", n_samples, minimum=2)
@@ -662,6 +663,6 @@ def write_outputs(
     if sens is not None:
         summary["sensitivities"] = sens
     path = outdir / "summary.json"
-    path.write_text(json.dumps(summary, indent=2))
+    write_text(path, json.dumps(summary, indent=2))
     written.append(path)
     return written

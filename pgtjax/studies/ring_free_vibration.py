@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from pgtjax._files import write_text
 from pgtjax.models.ring import RingParams, nodal_diameter, ring_natural_frequencies
 
 #: Table 5.3 of the thesis [Hz], rows = first six elastic frequencies (taken as n = 2..7).
@@ -209,7 +210,7 @@ def write_outputs(outdir, **kw) -> list:
     outdir.mkdir(parents=True, exist_ok=True)
     table = ring_gear_free_vibration_table(**kw)
     path = outdir / "table_5_3.json"
-    path.write_text(json.dumps(json_table(table), indent=2))
+    write_text(path, json.dumps(json_table(table), indent=2))
     written = [path]
     for model in ("I", "II"):
         p = table_5_1_params(model, **kw)

@@ -54,6 +54,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import plots
+from .._files import write_text
 from .._linearization import solve_moments
 from .._montecarlo import monte_carlo
 from .._results import MomentResult, MonteCarloResult, save_results
@@ -658,7 +659,7 @@ def write_outputs(study: RingMovingLoadStudy, outdir) -> list[Path]:
         )
     )
     path = outdir / "summary.json"
-    path.write_text(json.dumps(_summary(study), indent=2, default=float))
+    write_text(path, json.dumps(_summary(study), indent=2, default=float))
     written.append(path)
     return written
 
