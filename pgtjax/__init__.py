@@ -15,7 +15,6 @@ from ._contact import AbstractCriterion as AbstractCriterion
 from ._contact import Backlash as Backlash
 from ._contact import ContactLaw as ContactLaw
 from ._contact import EnergyCriterion as EnergyCriterion
-from ._contact import EnergyOriginCriterion as EnergyOriginCriterion
 from ._contact import ForceCriterion as ForceCriterion
 from ._contact import Linearization as Linearization
 from ._deterministic import simulate as simulate

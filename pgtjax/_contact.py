@@ -23,10 +23,11 @@ Criteria (the ``criterion`` argument):
     Stein's lemma, ``f_0 = E[f]`` (Eq. 4.49) and
     ``k_e = 2/3 (E[f'] + (E[P] - P(mu)) / sigma^2)``.
     For a linear spring (b = 0) or permanent contact this returns ``k`` exactly.
-``"energy_origin"``
-    Eq. 4.43 as printed, ``k_e = 2/3 (E[f'] + E[P] / sigma^2)``, with the potential measured about the origin.
-    Kept only to reproduce/diagnose the thesis; under a static load it overestimates ``k_e`` by
-    ``(mu - b)^2 / (3 sigma^2)`` in relative terms.
+
+Eq. 4.43 as printed, ``k_e = 2/3 (E[f'] + E[P] / sigma^2)`` with the potential measured about the origin, is
+not offered: under a static load it overestimates ``k_e`` by ``(mu - b)^2 / (3 sigma^2)`` relative and its
+fixed point can settle on a spurious branch (docs/corrections.md, C1). Where ``|mu| <= b`` it equals
+``"energy"``.
 
 The potential is the continuous one, ``P = k (delta -/+ b)^2 / 2`` outside the gap and 0 inside. Eq. 4.32 as
 printed (``k delta^2/2 - k b delta``) differs by the constant ``-k b^2/2`` and is discontinuous at ``+-b``,
@@ -36,7 +37,6 @@ Numerics: with ``z = (mu - b) / sigma`` the expectations are ``sigma`` times fun
 ``Phi`` (via ``erfc``, relatively accurate in the tails) and ``phi``; ``z`` is clipped to +-40 where ``Phi``
 and ``phi`` are exactly saturated in float64, so every coefficient is finite and differentiable for every
 ``sigma >= 0`` (``sigma = 0`` gives the deterministic limit ``k_e = f'(mu)``, ``f_0 = f(mu)``) and for ``b = 0``.
-(The ``"energy_origin"`` term, which grows like ``z^2``, is frozen beyond the clip rather than saturated.)
 """
 
 from __future__ import annotations
@@ -67,8 +67,8 @@ class Linearization(NamedTuple):
 
 class AbstractCriterion(eqx.Module):
     """Strategy: how statistical linearization picks ``(k_e, f_0)`` from the Gaussian expectations of a
-    contact law. A law supplies ``E[f]``, ``E[f']`` and, if :attr:`potential_reference` is not None, the
-    excess potential ``(E[P] - P_ref) / sigma^2`` with ``P_ref = P(mu)`` (``"mean"``) or 0 (``"origin"``)."""
+    contact law. A law supplies ``E[f]``, ``E[f']`` and, if :attr:`potential_reference` is ``"mean"``, the
+    excess potential ``(E[P] - P(mu)) / sigma^2``."""
 
     name: ClassVar[str]
     potential_reference: ClassVar[str | None]
@@ -99,24 +99,27 @@ class EnergyCriterion(AbstractCriterion):
         return Linearization(2.0 / 3.0 * (mean_stiffness + excess_potential), mean_force)
 
 
-class EnergyOriginCriterion(EnergyCriterion):
-    """Eq. 4.43 as printed, the potential measured about the origin: for reproducing the thesis only. Under a
-    static load it overestimates ``k_e`` by ``(mu - b)^2 / (3 sigma^2)`` relative, and its fixed point can
-    settle on a spurious branch with ``k_e`` many times the mesh stiffness."""
-
-    name: ClassVar[str] = "energy_origin"
-    potential_reference: ClassVar[str | None] = "origin"
-
-
-CRITERIA = {c.name: c for c in (ForceCriterion, EnergyCriterion, EnergyOriginCriterion)}
+CRITERIA = {c.name: c for c in (ForceCriterion, EnergyCriterion)}
 
 
 def as_criterion(criterion) -> AbstractCriterion:
-    """A criterion object from an object or its name (``"force"``, ``"energy"``, ``"energy_origin"``)."""
+    """A criterion object from an object or its name (``"force"``, ``"energy"``)."""
     if isinstance(criterion, AbstractCriterion):
+        if criterion.potential_reference not in (None, "mean"):
+            raise ValueError(
+                f"`criterion` {type(criterion).__name__}: potential_reference must be None (force-type) or "
+                f"'mean' (energy-type), got {criterion.potential_reference!r}"
+            )
         return criterion
     if isinstance(criterion, str) and criterion in CRITERIA:
         return CRITERIA[criterion]()
+    if criterion == "energy_origin":
+        raise ValueError(
+            "`criterion` 'energy_origin' (thesis Eq. 4.43 as printed, the potential measured about the origin) "
+            "was removed: under a static load it overestimates k_e by (mu - b)^2 / (3 sigma^2) and its fixed "
+            "point can settle on a spurious branch; use 'energy', which equals Eq. 4.43 wherever |mu| <= b "
+            "(docs/corrections.md, C1)"
+        )
     raise ValueError(
         f"`criterion` must be one of {tuple(CRITERIA)} or a pgtjax criterion object, got {criterion!r}"
     )
@@ -173,17 +176,13 @@ def _flank_values(criterion, offset, sigma):
         upper = 1.0 - _second_moment_ratio(-z, cdf_neg, pdf)
         stats.append(jnp.where(z > 0.0, upper, _second_moment_ratio(z, cdf, pdf)))
         d_excess = 2.0 * jnp.where(z > 0.0, pdf - z * cdf_neg, z * cdf + pdf)
-    elif criterion == "energy_origin":
-        stats.append(_second_moment_ratio(z, cdf, pdf))
-        d_excess = 2.0 * (z * cdf + pdf)
     return z, cdf, pdf, tuple(stats), d_excess
 
 
 @functools.partial(jax.custom_jvp, nondiff_argnums=(0,))
 def _flank_statistics(criterion, offset, sigma):
     """For a flank deflection ``X ~ N(offset, sigma^2)``: ``(P(X > 0), E[X+])`` and, for the energy
-    criteria, the excess second moment ``(E[(X+)^2] - max(E[X], 0)^2) / sigma^2`` (``"energy"``) or
-    ``E[(X+)^2] / sigma^2`` = :func:`_second_moment_ratio` (``"energy_origin"``).
+    criterion, the excess second moment ``(E[(X+)^2] - max(E[X], 0)^2) / sigma^2``.
 
     Its derivatives are written in terms of the same ``Phi(z)`` and ``phi(z)`` (no new special-function
     evaluations): with ``dz = (d offset - z d sigma) / sigma`` (zero where ``z`` is saturated, ``|z| = 40``
@@ -379,12 +378,9 @@ class Backlash(ContactLaw):
         # evaluated once for both flanks (fewer, larger operations)
         upper, lower, sigma = jnp.broadcast_arrays(mu - b, -b - mu, sigma)
         offset, sigma = jnp.stack([upper, lower]), sigma[None]
-        # per flank: P(contact), E[(flank deflection)+] and, for the energy criteria, the excess second
-        # moment ((E[P] - P(mu)) / sigma^2 cancellation-free, or E[P] / sigma^2 about the origin for
-        # "energy_origin": Eq. 4.43 as printed, which grows like (mu - b)^2 / sigma^2 in permanent contact)
-        flank_mode = {None: "force", "mean": "energy", "origin": "energy_origin"}[
-            criterion.potential_reference
-        ]
+        # per flank: P(contact), E[(flank deflection)+] and, for the energy criterion, the excess second
+        # moment ((E[P] - P(mu)) / sigma^2, cancellation-free)
+        flank_mode = {None: "force", "mean": "energy"}[criterion.potential_reference]
         stats = _flank_statistics(flank_mode, offset, sigma)
         cdf, mean_part = stats[0], stats[1]
         contact_probability = cdf[0] + cdf[1]  # Eq. 3.39 / k

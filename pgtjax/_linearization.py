@@ -599,8 +599,8 @@ def solve_moments(
         initial_displacement, initial_velocity: mean initial state (default 0).
         initial_covariance: (2n, 2n) covariance of ``(u, v)`` at ``t0`` (default 0: deterministic start).
         criterion: the SL criterion, an object or its name: :class:`pgtjax.ForceCriterion` / ``"force"``
-            (Eqs. 3.37-3.42), :class:`pgtjax.EnergyCriterion` / ``"energy"`` (ch. 4, corrected) or
-            ``"energy_origin"`` (Eq. 4.43 as printed, for comparison only).
+            (Eqs. 3.37-3.42) or :class:`pgtjax.EnergyCriterion` / ``"energy"`` (ch. 4, corrected: equals
+            Eq. 4.43 where ``|mu| <= b``, and stays sensible under a static load).
         integrator: the time discretization, :class:`pgtjax.Newmark` (default: exact stationary covariance)
             or :class:`pgtjax.NewmarkBridge` (the documents' scheme).
         noise_scheme: shorthand for ``integrator``: ``"trapezoidal"`` (Newmark) or ``"newmark"`` (NewmarkBridge).

@@ -40,7 +40,6 @@ LINESTYLES = {
     "MC": dict(color="k", lw=1.6),
     "SL force": dict(color="tab:blue", ls="--"),
     "SL energy": dict(color="tab:red", ls=":"),
-    "SL energy_origin": dict(color="tab:green", ls="-."),
 }
 
 _SCALE = {"m": (1e6, "µm"), "rad": (1.0, "rad"), "N": (1e-3, "kN"), "m/s": (1e3, "mm/s")}

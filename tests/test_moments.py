@@ -252,7 +252,7 @@ def _contact_space_data(nc, seed):
     )
 
 
-@pytest.mark.parametrize("criterion", ["force", "energy", "energy_origin"])
+@pytest.mark.parametrize("criterion", ["force", "energy"])
 def test_closed_form_fixed_point_jacobian_equals_forward_mode_autodiff(criterion):
     """The Newton Jacobian of the contact-space fixed point is assembled in closed form from the law's own
     derivatives (pgtjax._linearization._evaluate); it must equal jax.jacfwd of the residual, including a
@@ -316,7 +316,7 @@ def test_implicit_tangent_of_end_terms_equals_autodiff(criterion):
 
 
 @pytest.mark.parametrize("case", ["general", "zero_std", "asymmetric_y"])
-@pytest.mark.parametrize("criterion", ["force", "energy", "energy_origin"])
+@pytest.mark.parametrize("criterion", ["force", "energy"])
 def test_implicit_tangent_of_fixed_point_equals_autodiff_formula(criterion, case):
     """The closed-form tangent of the converged point, ``dz = -J^-1 (dR/ddata) ddata``, against the same
     formula built from plain autodiff: J by jacfwd of the residual in z, dR/ddata by a jvp of the residual

@@ -37,7 +37,7 @@ def _add_gear_pair_options(p: argparse.ArgumentParser, quick: bool) -> None:
     p.add_argument(
         "--criteria",
         default="force,energy",
-        help="comma-separated SL criteria among force, energy, energy_origin (default %(default)s)",
+        help="comma-separated SL criteria among force, energy (default %(default)s)",
     )
     p.add_argument(
         "--pdf-times",

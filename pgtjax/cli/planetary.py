@@ -42,9 +42,7 @@ def _add_planetary_options(p: argparse.ArgumentParser, quick: bool) -> None:
         help="SL is saved this many times as often as MC (default %(default)s: resolves the "
         "meshing frequency)",
     )
-    p.add_argument(
-        "--criteria", default="force", help="comma-separated SL criteria (force, energy, energy_origin)"
-    )
+    p.add_argument("--criteria", default="force", help="comma-separated SL criteria (force, energy)")
     p.add_argument(
         "--ring-model",
         choices=("elastic", "rigid"),
