@@ -11,12 +11,23 @@ from typing import NamedTuple
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ._failure import SolverError, error_if_nonfinite, is_concrete, raise_if_nonfinite
 from ._loop import saved_scan
 from ._newmark import AbstractIntegrator, initial_sample_state, resolve_integrator, sample_step, snapshot
 from ._results import Trajectory
-from ._system import System, check_count, initial_state, validate_system, validate_time_grid
+from ._system import (
+    System,
+    as_float_array,
+    check_contact_stiffness_over_time,
+    check_count,
+    check_memory,
+    check_stability,
+    initial_state,
+    validate_system,
+    validate_time_grid,
+)
 
 
 def simulate(
@@ -37,7 +48,10 @@ def simulate(
     naming the first time and quantity that is not finite, or if a contact solve did not converge (with
     ``False`` the trajectory is returned as it is; ``unconverged`` counts the failed steps)."""
     validate_system(system, t0)
-    n_steps, save_every = validate_time_grid(dt, n_steps, save_every)
+    n_steps, save_every = validate_time_grid(dt, n_steps, save_every, t0)
+    check_memory("simulate", n_steps // save_every + 1, 3 * system.n_dof + 2 * system.n_contacts)
+    check_stability(system, t0, horizon=None if isinstance(dt, jax.core.Tracer) else n_steps * float(dt))
+    check_contact_stiffness_over_time(system, t0, dt, n_steps)
     u0, v0 = initial_state(system, initial_displacement, initial_velocity)
     result = _simulate_jit(
         system,
@@ -129,13 +143,18 @@ def static_equilibrium(
         raise ValueError(f"`tol` must be a number in (0, 1), got {tol!r}")
     max_iter = check_count("max_iter", max_iter)
     n = system.n_dof
-    v = jnp.zeros(n) if velocity is None else jnp.asarray(velocity, jnp.float64)
-    if v.shape != (n,):
-        raise ValueError(f"`velocity` must have shape ({n},), got {v.shape}")
-    if initial_guess is not None:
-        initial_guess = jnp.asarray(initial_guess, jnp.float64)
-        if initial_guess.shape != (n,):
-            raise ValueError(f"`initial_guess` must have shape ({n},), got {initial_guess.shape}")
+    v, initial_guess = (
+        None if value is None else as_float_array(name, value)
+        for name, value in (("velocity", velocity), ("initial_guess", initial_guess))
+    )
+    v = jnp.zeros(n) if v is None else v
+    for name, value in (("velocity", v), ("initial_guess", initial_guess)):
+        if value is None:
+            continue
+        if value.shape != (n,):
+            raise ValueError(f"`{name}` must have shape ({n},), got {value.shape}")
+        if is_concrete(value) and not np.all(np.isfinite(np.asarray(value))):
+            raise ValueError(f"`{name}` must contain only finite numbers (no NaN or inf)")
     u, err, iterations = _static_solve(
         system, jnp.asarray(t, jnp.float64), v, initial_guess, tol=float(tol), max_iter=max_iter
     )

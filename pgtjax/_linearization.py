@@ -52,6 +52,11 @@ from ._results import MomentResult
 from ._system import (
     Observables,
     System,
+    check_contact_stiffness_over_time,
+    check_initial_covariance,
+    check_memory,
+    check_observables,
+    check_stability,
     covariance_index,
     initial_state,
     validate_system,
@@ -624,24 +629,21 @@ def solve_moments(
     """
     validate_system(system, t0)
     cov_index = covariance_index(system, covariance_dofs)
-    n_steps, save_every = validate_time_grid(dt, n_steps, save_every)
+    n_steps, save_every = validate_time_grid(dt, n_steps, save_every, t0)
+    check_observables(system, observables, t0)
+    n_obs = 0 if observables is None else len(observables.names)
+    per_save = 4 * system.n_dof + 6 * system.n_contacts + 2 * n_obs + len(cov_index) ** 2 + 3
+    check_memory("solve_moments", n_steps // save_every + 1, per_save)
+    check_stability(system, t0, horizon=None if isinstance(dt, jax.core.Tracer) else n_steps * float(dt))
+    check_contact_stiffness_over_time(system, t0, dt, n_steps)
     criterion = as_criterion(criterion)
     integrator = resolve_integrator(integrator, noise_scheme)
     if isinstance(rtol, bool) or not isinstance(rtol, numbers.Real) or not 0.0 < rtol < 1.0:
         raise ValueError(f"`rtol` must be a number in (0, 1), got {rtol!r}")
     if isinstance(max_iter, bool) or not isinstance(max_iter, numbers.Integral) or max_iter < 1:
         raise ValueError(f"`max_iter` must be an integer >= 1, got {max_iter!r}")
-    n = system.n_dof
     u0, v0 = initial_state(system, initial_displacement, initial_velocity)
-    p0 = (
-        jnp.zeros((2 * n, 2 * n))
-        if initial_covariance is None
-        else jnp.asarray(initial_covariance, jnp.float64)
-    )
-    if p0.shape != (2 * n, 2 * n):
-        raise ValueError(f"`initial_covariance` must have shape {(2 * n, 2 * n)}, got {p0.shape}")
-    if not isinstance(p0, jax.core.Tracer) and not np.all(np.isfinite(np.asarray(p0))):
-        raise ValueError("`initial_covariance` must be finite")
+    p0 = check_initial_covariance(system, initial_covariance)
     result = _solve_moments_jit(
         system,
         jnp.asarray(t0, jnp.float64),

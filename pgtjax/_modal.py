@@ -13,6 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._config import require_x64
 from ._numerics import safe_sqrt
 from ._system import System, at_time, validate_system
 
@@ -36,7 +37,24 @@ def modal_analysis(system: System, t: float = 0.0, *, include_contacts: bool = T
     if include_contacts and system.n_contacts:
         g = system.contact_direction(t)
         k = k + (g * system.contact_stiffness(t)[None, :]) @ g.T
-    return modes_of(system.mass, k, system.dof_names)
+    modes = modes_of(system.mass, k, system.dof_names)
+    if not isinstance(k, jax.core.Tracer):  # the frequencies' safe_sqrt would show a negative omega^2 as 0 Hz
+        values = _eigenvalues(np.asarray(system.mass), np.asarray(k))
+        scale = float(np.max(np.abs(values))) if values.size else 0.0
+        if values.size and values.min() < -1e-9 * scale:
+            j = int(np.argmin(values))
+            raise ValueError(
+                f"modal_analysis: the stiffness{' with the contacts closed' if include_contacts and system.n_contacts else ''} "
+                f"at t = {float(t):.6g} s has a negative eigenvalue omega^2 = {values[j]:.6g} rad^2/s^2 (mode {j + 1}): "
+                "the system is statically unstable there and has no natural frequency; check `stiffness` "
+                "(and the contacts' stiffness)"
+            )
+    return modes
+
+
+def _eigenvalues(mass, stiffness):
+    """Real parts of the eigenvalues of ``M^-1 K`` (omega^2, rad^2/s^2), ascending."""
+    return np.sort(np.linalg.eigvals(np.linalg.solve(mass, stiffness)).real)
 
 
 class SymmetricEigen(NamedTuple):
@@ -51,6 +69,20 @@ class SymmetricEigen(NamedTuple):
 def symmetric_eigen(mass, stiffness) -> SymmetricEigen:
     """The one generalized symmetric eigen-solve of the package: through the Cholesky factor of M,
     ``L^-1 K L^-T y = lam y`` (symmetrized against rounding), ``phi = L^-T y``. Differentiable (``eigh``)."""
+    require_x64("symmetric_eigen")
+    mass, stiffness = jnp.asarray(mass, jnp.float64), jnp.asarray(stiffness, jnp.float64)
+    n = mass.shape[0] if mass.ndim == 2 else -1
+    if mass.shape != (n, n) or stiffness.shape != (n, n):
+        raise ValueError(
+            f"symmetric_eigen: `mass` and `stiffness` must be square matrices of one size, got {mass.shape} and "
+            f"{stiffness.shape}"
+        )
+    if not isinstance(mass, jax.core.Tracer):
+        m = np.asarray(mass)
+        if not (
+            np.allclose(m, m.T, rtol=1e-10, atol=0.0) and np.linalg.eigvalsh(0.5 * (m + m.T)).min() > 0.0
+        ):
+            raise ValueError("symmetric_eigen: `mass` must be symmetric positive definite")
     chol = jnp.linalg.cholesky(mass)
     a = jax.scipy.linalg.solve_triangular(chol, stiffness, lower=True)
     a = jax.scipy.linalg.solve_triangular(chol, a.T, lower=True).T

@@ -43,7 +43,12 @@ from ._results import MonteCarloResult
 from ._system import (
     Observables,
     System,
+    check_contact_stiffness_over_time,
     check_count,
+    check_initial_covariance,
+    check_memory,
+    check_observables,
+    check_stability,
     covariance_index,
     initial_state,
     validate_system,
@@ -65,6 +70,39 @@ def _progress_bar(total: int, enabled: bool):
 
 PROPAGATIONS = ("auto", "eigen", "physical")
 _INITIAL_STATE_TAG = 0xFFFFFFFF  # fold_in tag of a sample's initial-state draw (block indices are smaller)
+
+
+def check_key(key) -> None:
+    """``ValueError`` unless ``key`` is one JAX PRNG key (``jax.random.key(seed)``, or a legacy uint32 key
+    ``jax.random.PRNGKey(seed)``)."""
+    typed = isinstance(key, jax.Array) and jax.dtypes.issubdtype(key.dtype, jax.dtypes.prng_key)
+    legacy = isinstance(key, jax.Array) and key.dtype == jnp.uint32 and key.shape == (2,)
+    if typed and key.shape != ():
+        raise ValueError(
+            f"`key` must be one PRNG key, got a batch of shape {key.shape}; for several independent runs "
+            "call monte_carlo once per key (or raise n_samples: samples already draw independent noise)"
+        )
+    if not (typed or legacy):
+        raise ValueError(f"`key` must be a JAX PRNG key such as jax.random.key(0), got {key!r}")
+
+
+def _check_histogram_times(histogram_times, histograms, t0, duration, save_interval) -> list[float]:
+    """The histogram times (s) as floats, each finite and within the run (half a save interval of slack: each
+    is reported at the nearest saved time)."""
+    try:
+        values = [float(t) for t in np.atleast_1d(np.asarray(histogram_times, dtype=np.float64))]
+    except (TypeError, ValueError):
+        raise ValueError(f"`histogram_times` must be numbers (s), got {histogram_times!r}") from None
+    if values and not histograms:
+        raise ValueError("`histogram_times` were given without `histograms` (quantity -> bin edges) to count")
+    t0, end = float(t0), float(t0) + float(duration)
+    for t in values:
+        if not (np.isfinite(t) and t0 - 0.5 * float(save_interval) <= t <= end + 0.5 * float(save_interval)):
+            raise ValueError(
+                f"`histogram_times` must lie within the run, [{t0:.6g}, {end:.6g}] s (each is reported at the "
+                f"nearest saved time), got {t!r}"
+            )
+    return values
 
 
 def quantity_names(system: System, observables: Observables | None = None) -> list[str]:
@@ -335,7 +373,11 @@ def monte_carlo(
             (``unconverged`` counts the failed solves).
     """
     validate_system(system, t0)
-    n_steps, save_every = validate_time_grid(dt, n_steps, save_every)
+    n_steps, save_every = validate_time_grid(dt, n_steps, save_every, t0)
+    check_key(key)
+    check_observables(system, observables, t0)
+    check_stability(system, t0, horizon=n_steps * float(dt))
+    check_contact_stiffness_over_time(system, t0, dt, n_steps)
     integrator = resolve_integrator(integrator, noise_scheme)
     check_count("n_samples", n_samples, minimum=2)
     check_count("chunk_size", chunk_size)
@@ -353,15 +395,16 @@ def monte_carlo(
     if initial_covariance is None:
         init_factor = jnp.zeros((2 * n, 0))
     else:
-        p0 = np.asarray(initial_covariance, dtype=np.float64)
-        if p0.shape != (2 * n, 2 * n) or not np.all(np.isfinite(p0)):
-            raise ValueError(f"`initial_covariance` must be a finite ({2 * n}, {2 * n}) matrix")
+        p0 = np.asarray(check_initial_covariance(system, initial_covariance))
         lam, vec = np.linalg.eigh(0.5 * (p0 + p0.T))
-        if lam.min() < -1e-10 * max(lam.max(), 1e-300):
-            raise ValueError("`initial_covariance` must be positive semi-definite")
         keep = lam > 1e-14 * max(lam.max(), 1e-300)
         init_factor = jnp.asarray(vec[:, keep] * np.sqrt(lam[keep])[None, :])
     names = quantity_names(system, observables)
+    if histograms is not None and not isinstance(histograms, Mapping):
+        raise ValueError(
+            f"`histograms` must be a dict {{quantity name: bin edges}}, e.g. {{'u:x': np.linspace(-1e-4, 1e-4, 41)}}, "
+            f"got {type(histograms).__name__}"
+        )
     histograms = dict(histograms or {})
     hist_columns, edges = [], []
     for name, e in histograms.items():
@@ -376,6 +419,11 @@ def monte_carlo(
         edges.append(e)
     if len({e.size for e in edges}) > 1:
         raise ValueError("all histogram edge arrays must have the same length")
+    histogram_times = _check_histogram_times(histogram_times, histograms, t0, dt * n_steps, dt * save_every)
+    n_saved = n_steps // save_every + 1
+    cov_size = len(covariance_index(system, covariance_dofs))
+    per_save = 2 * len(names) + sum(e.size + 1 for e in edges) + cov_size**2  # mean, M2, counts, comoments
+    check_memory("monte_carlo", n_saved, per_save)
     hist_edges = jnp.asarray(np.stack(edges)) if edges else jnp.zeros((0, 2))
     cov_columns = covariance_index(system, covariance_dofs)  # u then v: the columns of q, too
     devices = local_devices(devices)

@@ -18,6 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._config import require_x64
 from ._numerics import safe_sqrt
 from ._typing import Array, Bool, Float64, Int, typechecked
 
@@ -116,7 +117,11 @@ class MomentResult(_Labelled, _Covariance):
         (Monte Carlo's counterpart is the field of the same name.)"""
         if hasattr(clearance, "contact_clearance"):
             clearance = clearance.contact_clearance()
-        b = jnp.broadcast_to(jnp.asarray(clearance, jnp.float64), (len(self.contact_names),))
+        b = jnp.asarray(clearance, jnp.float64)
+        nc = len(self.contact_names)
+        if b.ndim > 1 or (b.ndim == 1 and b.shape[0] not in (1, nc)):
+            raise ValueError(f"`clearance` must be a number or one per contact ({nc}), got shape {b.shape}")
+        b = jnp.broadcast_to(b, (nc,))
         return _gaussian_gap_probability(self.mean_delta, self.std_delta, b[None, :])
 
     @classmethod
@@ -294,9 +299,25 @@ def _to_numpy_dict(result) -> tuple[dict, dict]:
 def save_results(path, result, **attributes) -> Path:
     """Write a result (any class of this module) to ``path`` (``.npz``) with its labels and units;
     ``attributes`` (JSON-serialisable: parameters, units of derived quantities...) are stored too."""
-    path = Path(path)
+    path = _as_path(path)
     if path.suffix != ".npz":  # numpy would append it; return the path that really exists
         path = path.with_name(path.name + ".npz")
+    if not isinstance(result, tuple(_CLASSES.values())):
+        raise ValueError(
+            f"save_results writes a MomentResult, MonteCarloResult or Trajectory, got {type(result).__name__}"
+        )
+    if not path.parent.is_dir():
+        raise ValueError(f"cannot write {str(path)!r}: the folder {str(path.parent)!r} does not exist")
+    if path.is_dir():
+        raise ValueError(f"cannot write {str(path)!r}: it is a folder")
+    for name, value in attributes.items():
+        try:
+            json.dumps(value)
+        except (TypeError, ValueError):
+            raise ValueError(
+                f"save_results attribute `{name}` must be JSON-serialisable (numbers, strings, lists, dicts; "
+                f"convert arrays with .tolist()), got {type(value).__name__}"
+            ) from None
     arrays, meta = _to_numpy_dict(result)
     meta["attributes"] = attributes
     # a temporary name in the same folder, renamed into place: a run killed while writing leaves the
@@ -316,7 +337,10 @@ _CLASSES = {"MomentResult": MomentResult, "MonteCarloResult": MonteCarloResult, 
 def load_results(path):
     """Inverse of :func:`save_results`: returns ``(result, attributes)``; ``ValueError`` naming the file for
     anything that is not a readable pgtjax result."""
-    path = Path(path)
+    require_x64("load_results")
+    path = _as_path(path)
+    if path.is_dir():
+        raise ValueError(f"result file {str(path)!r} is a folder, not a .npz file written by save_results")
     try:
         with np.load(path, allow_pickle=False) as data:
             meta = json.loads(str(data["__meta__"]))
@@ -342,4 +366,39 @@ def load_results(path):
         kwargs[name] = tuple(value) if isinstance(value, list) else value
     for name in dict_fields:
         kwargs.setdefault(name, {})
-    return cls(**kwargs), attributes
+    try:
+        result = cls(**kwargs)
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"{str(path)!r} is not a complete pgtjax result file: {err}") from None
+    _check_loaded_shapes(result, path)
+    return result, attributes
+
+
+def _as_path(path) -> Path:
+    if not isinstance(path, str | os.PathLike):
+        raise ValueError(f"`path` must be a file name (str or Path), got {path!r}")
+    return Path(path)
+
+
+def _check_loaded_shapes(result, path) -> None:
+    """``ValueError`` naming the file if a loaded array does not fit the result's times and labels."""
+    n_times = result.times.shape[0] if result.times.ndim == 1 else -1
+    columns = {
+        "dof_names": len(result.dof_names),
+        "contact_names": len(result.contact_names),
+        "observable_names": len(getattr(result, "observable_names", ())),
+    }
+    expected = {
+        "mean_u": "dof_names", "std_u": "dof_names", "mean_v": "dof_names", "std_v": "dof_names",
+        "u": "dof_names", "v": "dof_names", "mean_delta": "contact_names", "std_delta": "contact_names",
+        "force_mean": "contact_names", "force_std": "contact_names", "force": "contact_names",
+        "k_e": "contact_names", "f_0": "contact_names", "mean_obs": "observable_names",
+        "std_obs": "observable_names",
+    }  # fmt: skip
+    for name, labels in expected.items():
+        value = getattr(result, name, None)
+        if value is not None and tuple(value.shape) != (n_times, columns[labels]):
+            raise ValueError(
+                f"{str(path)!r} is not a consistent pgtjax result file: `{name}` has shape {tuple(value.shape)}, "
+                f"expected ({n_times}, {columns[labels]}) (saved times x {labels})"
+            )

@@ -18,6 +18,7 @@ Units are SI (m, kg, N, s) unless a model says otherwise; a DOF may be an angle 
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -26,9 +27,30 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._config import require_x64
 from ._contact import Backlash, ContactLaw
 
 ArrayOrFunction = jax.Array | Callable
+
+
+def as_float_array(name: str, value) -> jax.Array:
+    """``value`` as a float64 array; ``ValueError`` naming ``name`` if it is not numbers (a string, None,
+    a ragged list)."""
+    try:
+        return jnp.asarray(value, dtype=jnp.float64)
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"`{name}` must be numbers (an array), got {value!r} ({err})") from None
+
+
+def check_names(what: str, names: Sequence[str], count: int) -> tuple[str, ...]:
+    """``names`` as a tuple: ``count`` distinct strings (results are looked up by name)."""
+    names = tuple(names)
+    if len(names) != count or not all(isinstance(x, str) for x in names):
+        raise ValueError(f"`{what}` must be {count} strings (one per entry), got {names!r}")
+    repeated = sorted({x for x in names if names.count(x) > 1})
+    if repeated:
+        raise ValueError(f"`{what}` must be distinct (results are looked up by name); repeated: {repeated}")
+    return names
 
 
 def at_time(value: ArrayOrFunction, t) -> jax.Array:
@@ -51,15 +73,22 @@ class FourierSeries(eqx.Module):
     phase: jax.Array
 
     def __init__(self, mean, sin_coefficients=(), cos_coefficients=(), frequency=0.0, phase=0.0):
-        self.mean = jnp.asarray(mean, dtype=jnp.float64)
-        sin_c = jnp.asarray(sin_coefficients, dtype=jnp.float64)
-        cos_c = jnp.asarray(cos_coefficients, dtype=jnp.float64)
+        self.mean = as_float_array("mean", mean)
+        sin_c = as_float_array("sin_coefficients", sin_coefficients)
+        cos_c = as_float_array("cos_coefficients", cos_coefficients)
         n_harm = max(sin_c.shape[0] if sin_c.ndim else 0, cos_c.shape[0] if cos_c.ndim else 0)
         shape = (n_harm,) + self.mean.shape
-        self.sin_coefficients = jnp.broadcast_to(sin_c if sin_c.size else 0.0, shape).astype(jnp.float64)
-        self.cos_coefficients = jnp.broadcast_to(cos_c if cos_c.size else 0.0, shape).astype(jnp.float64)
-        self.frequency = jnp.asarray(frequency, dtype=jnp.float64)
-        self.phase = jnp.broadcast_to(jnp.asarray(phase, dtype=jnp.float64), self.mean.shape)
+        try:
+            self.sin_coefficients = jnp.broadcast_to(sin_c if sin_c.size else 0.0, shape).astype(jnp.float64)
+            self.cos_coefficients = jnp.broadcast_to(cos_c if cos_c.size else 0.0, shape).astype(jnp.float64)
+            self.phase = jnp.broadcast_to(as_float_array("phase", phase), self.mean.shape)
+        except ValueError:
+            raise ValueError(
+                f"FourierSeries: `sin_coefficients` {sin_c.shape} and `cos_coefficients` {cos_c.shape} must be "
+                f"(harmonics,) + the shape of `mean` {self.mean.shape} (or broadcast to it), and `phase` "
+                f"{jnp.shape(phase)} broadcast to `mean`"
+            ) from None
+        self.frequency = as_float_array("frequency", frequency)
 
     def __call__(self, t):
         order = jnp.arange(1, self.sin_coefficients.shape[0] + 1, dtype=jnp.float64)
@@ -82,10 +111,38 @@ class Observables(eqx.Module):
     units: tuple[str, ...] = eqx.field(static=True)
 
     def __init__(self, matrix, names: Sequence[str], units: Sequence[str] | None = None, offset=None):
-        self.matrix = matrix if callable(matrix) else jnp.asarray(matrix, dtype=jnp.float64)
-        self.offset = offset if (offset is None or callable(offset)) else jnp.asarray(offset, jnp.float64)
-        self.names = tuple(names)
+        self.matrix = matrix if callable(matrix) else as_float_array("Observables matrix", matrix)
+        self.offset = (
+            offset if (offset is None or callable(offset)) else as_float_array("Observables offset", offset)
+        )
+        if isinstance(names, str):
+            raise ValueError(f"Observables `names` must be a sequence of names, got the string {names!r}")
+        self.names = check_names("Observables names", names, len(tuple(names)))
         self.units = tuple(units) if units is not None else ("m",) * len(self.names)
+        if len(self.units) != len(self.names):
+            raise ValueError(f"Observables `units` must have {len(self.names)} entries, got {self.units!r}")
+        if not callable(self.matrix) and (self.matrix.ndim != 2 or self.matrix.shape[0] != len(self.names)):
+            raise ValueError(
+                f"Observables `matrix` must have shape ({len(self.names)}, n_dof) (one row per name), got "
+                f"{self.matrix.shape}"
+            )
+
+    def check(self, n_dof: int, t0) -> None:
+        """``ValueError`` unless ``C(t0)`` is a finite (n_obs, n_dof) matrix and ``d(t0)`` a finite (n_obs,)
+        vector (what a solver checks before it runs)."""
+        k = len(self.names)
+        c = self(jnp.asarray(t0, jnp.float64))
+        if jnp.shape(c) != (k, n_dof):
+            raise ValueError(
+                f"Observables `matrix` must have shape ({k}, {n_dof}) (n_obs, n_dof), got {jnp.shape(c)}"
+            )
+        _check_finite("Observables matrix", c)
+        d = self.shift(jnp.asarray(t0, jnp.float64))
+        if jnp.shape(d) != (k,):
+            raise ValueError(
+                f"Observables `offset` must have shape ({k},) (one per observable), got {jnp.shape(d)}"
+            )
+        _check_finite("Observables offset", d)
 
     def __call__(self, t):
         """C(t), (n_obs, n_dof)."""
@@ -134,14 +191,25 @@ class Contacts(eqx.Module):
         # a plain list or tuple of numbers is one array; of arrays, a pytree of inputs
         plain = isinstance(inputs, list | tuple) and not hasattr(inputs, "_fields")
         if plain and all(np.ndim(x) == 0 for x in inputs):
-            inputs = jnp.asarray(inputs, dtype=jnp.float64)
-        self.direction = direction if callable(direction) else jnp.asarray(direction, dtype=jnp.float64)
+            inputs = as_float_array("contact inputs", inputs)
+        self.direction = direction if callable(direction) else as_float_array("contact direction", direction)
         self.inputs = (
-            inputs if callable(inputs) else jax.tree.map(lambda x: jnp.asarray(x, jnp.float64), inputs)
+            inputs
+            if callable(inputs)
+            else jax.tree.map(lambda x: as_float_array("contact inputs", x), inputs)
         )
-        self.clearance = jnp.atleast_1d(jnp.asarray(clearance, dtype=jnp.float64))
+        clearance = as_float_array("clearance", clearance)
+        if clearance.ndim > 1:
+            raise ValueError(
+                f"`clearance` must be a number or one per contact (1-D), got shape {clearance.shape}"
+            )
+        self.clearance = jnp.atleast_1d(clearance)
         n = self.clearance.shape[0]
-        self.names = tuple(names) if names is not None else tuple(f"contact{j}" for j in range(n))
+        self.names = check_names(
+            "contact names", names if names is not None else [f"contact{j}" for j in range(n)], n
+        )
+        if law is not None and not isinstance(law, ContactLaw):
+            raise ValueError(f"`law` must be a pgtjax.ContactLaw (e.g. pgtjax.Backlash()), got {law!r}")
         self.law = Backlash() if law is None else law
 
     @property
@@ -183,22 +251,35 @@ class System(eqx.Module):
         dof_names: Sequence[str] | None = None,
         dof_units: Sequence[str] | None = None,
     ):
-        self.mass = jnp.atleast_2d(jnp.asarray(mass, dtype=jnp.float64))
+        self.mass = jnp.atleast_2d(as_float_array("mass", mass))
         n = self.mass.shape[0]
-        as_field = lambda x: x if callable(x) else jnp.asarray(x, dtype=jnp.float64)  # noqa: E731
-        self.stiffness = as_field(stiffness)
-        self.damping = as_field(jnp.zeros((n, n)) if damping is None else damping)
-        self.load = as_field(jnp.zeros(n) if load is None else load)
+        as_field = lambda name, x: x if callable(x) else as_float_array(name, x)  # noqa: E731
+        self.stiffness = as_field("stiffness", stiffness)
+        self.damping = as_field("damping", jnp.zeros((n, n)) if damping is None else damping)
+        self.load = as_field("load", jnp.zeros(n) if load is None else load)
         if callable(noise_input):
             self.noise_input = noise_input
-            m = jnp.shape(noise_input(jnp.zeros((), jnp.float64)))[1]
+            shape = jnp.shape(noise_input(jnp.zeros((), jnp.float64)))
+            if len(shape) != 2:
+                raise ValueError(f"`noise_input` must return an (n_dof, n_noise) matrix, got shape {shape}")
+            m = shape[1]
         else:
-            b = jnp.asarray(jnp.zeros((n, 0)) if noise_input is None else noise_input, jnp.float64)
+            b = as_float_array("noise_input", jnp.zeros((n, 0)) if noise_input is None else noise_input)
             self.noise_input = b[:, None] if b.ndim == 1 else b
             m = self.noise_input.shape[1]
-        self.spectral_density = jnp.broadcast_to(jnp.asarray(spectral_density, dtype=jnp.float64), (m,))
+        s0 = as_float_array("spectral_density", spectral_density)
+        if s0.ndim > 1 or (s0.ndim == 1 and s0.shape[0] not in (1, m)):
+            raise ValueError(
+                f"`spectral_density` must be a number or one per noise input ({m}, the columns of "
+                f"`noise_input`), got shape {s0.shape}"
+            )
+        self.spectral_density = jnp.broadcast_to(s0, (m,))
+        if contacts is not None and not isinstance(contacts, Contacts):
+            raise ValueError(f"`contacts` must be a pgtjax.Contacts or None, got {type(contacts).__name__}")
         self.contacts = contacts
-        self.dof_names = tuple(dof_names) if dof_names is not None else tuple(f"q{i}" for i in range(n))
+        self.dof_names = check_names(
+            "dof_names", dof_names if dof_names is not None else [f"q{i}" for i in range(n)], n
+        )
         self.dof_units = tuple(dof_units) if dof_units is not None else ("m",) * n
 
     @property
@@ -263,13 +344,10 @@ def _check_shape(name: str, value, shape: tuple[int, ...]) -> None:
 def validate_system(system: System, t0: float = 0.0) -> None:
     """Raise ``ValueError`` for inconsistent shapes, non-finite values or a mass matrix that is not
     symmetric positive definite. Value checks are skipped for traced arrays (inside ``jit``/``grad``)."""
-    if not jax.config.jax_enable_x64:
-        raise ValueError(
-            "pgtjax needs 64-bit floats, but `jax_enable_x64` was switched off after pgtjax was imported "
-            "(mesh stiffness times deflection is beyond float32); call jax.config.update('jax_enable_x64', True)"
-        )
+    require_x64("the solvers")
     if not isinstance(system, System):
         raise ValueError(f"`system` must be a pgtjax.System, got {type(system).__name__}")
+    check_time("t0", t0)
     n = system.n_dof
     M = system.mass
     _check_shape("mass", M, (n, n))
@@ -356,17 +434,183 @@ def covariance_index(system: System, dofs) -> tuple[int, ...]:
     return tuple(idx + [system.n_dof + i for i in idx])
 
 
-def validate_time_grid(dt, n_steps, save_every: int = 1) -> tuple[int, int]:
-    """``dt`` > 0 s and finite, ``n_steps`` >= 1, ``save_every`` >= 1 (integers) dividing ``n_steps``.
-    Returns ``(n_steps, save_every)`` as Python ints: the solvers' jitted cores take them as static sizes
-    (a NumPy integer would be traced as an array)."""
-    if not isinstance(dt, jax.core.Tracer):
-        if not np.isfinite(float(dt)) or float(dt) <= 0.0:
-            raise ValueError(f"`dt` must be a finite time step > 0 s, got {dt!r}")
+def check_time(name: str, value) -> None:
+    """``ValueError`` naming ``name`` unless ``value`` is one finite real number (s); traced values pass."""
+    if isinstance(value, jax.core.Tracer):
+        return
+    if isinstance(value, bool | str | complex) or np.ndim(value) != 0:
+        raise ValueError(f"`{name}` must be one real number (s), got {value!r}")
+    try:
+        finite = np.isfinite(float(value))
+    except (TypeError, ValueError):
+        finite = False
+    if not finite:
+        raise ValueError(f"`{name}` must be a finite number (s), got {value!r}")
+
+
+#: the largest step count: times t0 + k dt stay exact integers multiples of dt in float64 below 2^53
+MAX_STEPS = 2**53
+
+
+def validate_time_grid(dt, n_steps, save_every: int = 1, t0=0.0) -> tuple[int, int]:
+    """``dt`` > 0 s and finite, ``n_steps`` >= 1, ``save_every`` >= 1 (integers) dividing ``n_steps``, and
+    a grid on which time advances (``t0 + dt != t0`` in float64). Returns ``(n_steps, save_every)`` as Python
+    ints: the solvers' jitted cores take them as static sizes (a NumPy integer would be traced as an array)."""
+    check_time("dt", dt)
+    if not isinstance(dt, jax.core.Tracer) and float(dt) <= 0.0:
+        raise ValueError(f"`dt` must be a finite time step > 0 s, got {dt!r}")
     n_steps, save_every = check_count("n_steps", n_steps), check_count("save_every", save_every)
+    if n_steps >= MAX_STEPS:
+        raise ValueError(f"`n_steps` must be < 2^53 (= {MAX_STEPS}), got {n_steps}")
     if n_steps % save_every:
         raise ValueError(f"`n_steps` ({n_steps}) must be a multiple of `save_every` ({save_every})")
+    check_time("t0", t0)
+    if not any(isinstance(x, jax.core.Tracer) for x in (t0, dt)):
+        t0, dt = float(t0), float(dt)
+        if t0 + dt == t0:
+            raise ValueError(
+                f"`dt` ({dt!r} s) is below the float64 resolution of the time `t0` ({t0!r} s): time would not "
+                "advance; start nearer 0 (shift t0) or take a larger step"
+            )
     return n_steps, save_every
+
+
+def check_memory(what: str, n_saved: int, values_per_save: int, knob: str = "save_every") -> None:
+    """``ValueError`` before a run whose saved results (``n_saved`` times ``values_per_save`` float64
+    numbers) would not fit in half of this machine's memory (an out-of-memory error from XLA otherwise)."""
+    needed = 8.0 * n_saved * values_per_save
+    try:
+        available = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):  # not POSIX: no estimate
+        return
+    if needed > 0.5 * available:
+        raise ValueError(
+            f"{what}: the saved results would take {needed / 1e9:.3g} GB ({n_saved} saved times x "
+            f"{values_per_save} numbers), more than half of this machine's {available / 1e9:.3g} GB; save less "
+            f"often (raise `{knob}`) or shorten the run (`n_steps`)"
+        )
+
+
+def check_observables(system: System, observables, t0) -> None:
+    """``observables`` is None or a :class:`Observables` whose ``C(t0)`` is (n_obs, n_dof) and finite."""
+    if observables is None:
+        return
+    if not isinstance(observables, Observables):
+        raise ValueError(
+            f"`observables` must be a pgtjax.Observables or None, got {type(observables).__name__}"
+        )
+    observables.check(system.n_dof, t0)
+
+
+_SCAN_CHUNK = 4096  # step times evaluated at once by check_contact_stiffness_over_time
+
+
+@eqx.filter_jit
+def _first_bad_contact_step(system: System, t0, dt, n_steps, n_chunks: int):
+    """Index of the first step time ``t0 + k dt`` (k = 0..n_steps) at which a contact's closed stiffness is
+    negative or not finite; ``n_steps + 1`` if none."""
+    none = n_steps + 1
+
+    def chunk(first, c):
+        k = c * _SCAN_CHUNK + jnp.arange(_SCAN_CHUNK)
+        stiff = jax.vmap(system.contact_stiffness)(t0 + dt * k.astype(jnp.float64))
+        bad = jnp.any(~jnp.isfinite(stiff) | (stiff < 0.0), axis=1) & (k <= n_steps)
+        return jnp.minimum(first, jnp.where(jnp.any(bad), k[jnp.argmax(bad)], none)), None
+
+    first, _ = jax.lax.scan(chunk, jnp.asarray(none), jnp.arange(n_chunks))
+    return first
+
+
+def check_contact_stiffness_over_time(system: System, t0, dt, n_steps: int) -> None:
+    """``ValueError`` naming the contact and the first step time at which its stiffness taken as closed (the
+    law's ``closed_stiffness`` of the inputs at t: the mesh stiffness for backlash) is negative or not finite,
+    for contact inputs given as a function of time (checked at every step time before the run; constant
+    inputs are checked by :func:`validate_system`). Traced systems pass."""
+    if system.contacts is None or not callable(system.contacts.inputs):
+        return
+    if any(isinstance(x, jax.core.Tracer) for x in (*jax.tree.leaves(system), t0, dt)):
+        return
+    n_chunks = n_steps // _SCAN_CHUNK + 1
+    first = int(
+        _first_bad_contact_step(system, jnp.float64(t0), jnp.float64(dt), jnp.asarray(n_steps), n_chunks)
+    )
+    if first > n_steps:
+        return
+    t = float(t0) + float(dt) * first
+    stiff = np.asarray(system.contact_stiffness(jnp.float64(t)))
+    j = int(np.argmax(~np.isfinite(stiff) | (stiff < 0.0)))
+    raise ValueError(
+        f"the stiffness of contact {system.contacts.names[j]!r} (its law's closed stiffness, from the contacts' "
+        f"time-dependent inputs) is {float(stiff[j])!r} N/m at t = {t:.6g} s (step {first}), first there; a contact "
+        "stiffness must stay finite and >= 0 over the whole run: check the function given as the contacts' "
+        "stiffness/inputs"
+    )
+
+
+def check_initial_covariance(system: System, value) -> jax.Array:
+    """The initial covariance of ``(u, v)``: (2n, 2n), finite, symmetric and positive semi-definite
+    (default: zeros); checked where it is concrete."""
+    n2 = 2 * system.n_dof
+    if value is None:
+        return jnp.zeros((n2, n2))
+    p0 = as_float_array("initial_covariance", value)
+    if p0.shape != (n2, n2):
+        raise ValueError(f"`initial_covariance` must have shape {(n2, n2)} (u then v), got {p0.shape}")
+    if isinstance(p0, jax.core.Tracer):
+        return p0
+    a = np.asarray(p0)
+    if not np.all(np.isfinite(a)):
+        raise ValueError("`initial_covariance` must contain only finite numbers (no NaN or inf)")
+    scale = float(np.max(np.abs(a))) if a.size else 0.0
+    if not np.allclose(a, a.T, rtol=1e-10, atol=1e-12 * scale):
+        i, j = np.unravel_index(int(np.argmax(np.abs(a - a.T))), a.shape)
+        raise ValueError(
+            f"`initial_covariance` must be symmetric: entry ({i}, {j}) is {a[i, j]!r} but ({j}, {i}) is {a[j, i]!r}"
+        )
+    smallest = float(np.linalg.eigvalsh(0.5 * (a + a.T)).min()) if a.size else 0.0
+    if smallest < -1e-10 * scale:
+        raise ValueError(
+            f"`initial_covariance` must be positive semi-definite (a covariance), smallest eigenvalue {smallest!r}"
+        )
+    return p0
+
+
+def check_stability(system: System, t0, horizon=None) -> None:
+    """``ValueError`` if the system with its contacts closed (their ``closed_stiffness``) is unstable at ``t0``:
+    an eigenvalue of ``[[0, I], [-M^-1 K, -M^-1 C]]`` with a growth rate above ``1e-7`` of the spectral radius
+    (rounding of defective rigid-body pairs stays below that) that amplifies the response by more than 1 %
+    over ``horizon`` (s; default: any). Negative damping, a negative-definite stiffness or a non-symmetric
+    damping that feeds energy in are caught here, before they return finite nonsense. Traced systems pass."""
+    if not _is_concrete(system.mass) or any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(system)):
+        return
+    t = jnp.asarray(t0, jnp.float64)
+    k = np.asarray(at_time(system.stiffness, t))
+    c = np.asarray(at_time(system.damping, t))
+    if system.n_contacts:
+        g = np.asarray(system.contact_direction(t))
+        k = k + (g * np.asarray(system.contact_stiffness(t))[None, :]) @ g.T
+    m = np.asarray(system.mass)
+    n = m.shape[0]
+    a = np.block([[np.zeros((n, n)), np.eye(n)], [-np.linalg.solve(m, k), -np.linalg.solve(m, c)]])
+    if not np.all(np.isfinite(a)):
+        return  # the finiteness checks name the culprit
+    lam = np.linalg.eigvals(a)
+    radius = float(np.max(np.abs(lam)))
+    worst = lam[int(np.argmax(lam.real))]
+    growth = float(worst.real)
+    if growth <= 1e-7 * radius or (horizon is not None and growth * float(horizon) <= 0.01):
+        return
+    cause = (
+        "the damping feeds energy in (negative, or non-symmetric with an indefinite symmetric part): check `damping`"
+        if abs(worst.imag) > 0.0
+        else "a negative stiffness (a statically unstable mode) or negative damping: check `stiffness`, the "
+        "contacts' stiffness and `damping`"
+    )
+    raise ValueError(
+        f"the system is unstable at t = {float(t0):.6g} s (contacts closed): a mode"
+        f"{f' of {abs(worst.imag) / (2 * np.pi):.4g} Hz' if worst.imag else ''} grows like exp(s t) with "
+        f"s = {growth:.4g} 1/s (e-folding time {1.0 / growth:.4g} s); {cause}"
+    )
 
 
 def initial_state(system: System, initial_displacement=None, initial_velocity=None):
@@ -377,7 +621,7 @@ def initial_state(system: System, initial_displacement=None, initial_velocity=No
         ("initial_displacement", initial_displacement),
         ("initial_velocity", initial_velocity),
     ):
-        value = jnp.zeros(n) if value is None else jnp.asarray(value, jnp.float64)
+        value = jnp.zeros(n) if value is None else as_float_array(name, value)
         if value.shape != (n,):
             raise ValueError(f"`{name}` must have shape ({n},), got {value.shape}")
         _check_finite(name, value)

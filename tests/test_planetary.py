@@ -126,22 +126,26 @@ def lin_parker_params(n_planets):
     d = copy.deepcopy(BASE)
     d["n_planets"] = n_planets
     d["ring_model"] = "rigid"
-    body = lambda m, j, k, kt: dict(  # noqa: E731
+    # any consistent geometry (the radii are set to one below): module 20 mm, sun 20, planets 30, ring 80 teeth
+    body = lambda z, m, j, k, kt: dict(  # noqa: E731
+        teeth=z,
         mass=m,
         inertia=j,
-        pitch_diameter=2.0,
+        pitch_diameter=0.02 * z,
         bearing_stiffness=k,
         torsional_stiffness=kt,
     )
-    d["sun"] = body(0.40, 0.39, 1e8, 0.0)
-    d["planet"] = body(0.66, 0.61, 1e8, 0.0)
+    d["sun"] = body(20, 0.40, 0.39, 1e8, 0.0)
+    d["planet"] = body(30, 0.66, 0.61, 1e8, 0.0)
+    del d["planet"]["torsional_stiffness"]  # planets have none in the model
     d["carrier"] = dict(mass=5.43, inertia=6.29, bearing_stiffness=1e8, torsional_stiffness=0.0)
     d["ring"].update(
         rigid_mass=2.35,
         rigid_inertia=3.0,
         rigid_bearing_stiffness=1e8,
         rigid_torsional_stiffness=1e9,
-        pitch_diameter=2.0,
+        teeth=80,
+        pitch_diameter=1.6,
     )
     d["mesh"].update(
         sun_planet_stiffness=5e8, ring_planet_stiffness=5e8, pressure_angle_deg=24.6, stiffness_variation=0.0

@@ -4,6 +4,7 @@ and the parsing of comma-separated option values."""
 from __future__ import annotations
 
 import argparse
+import math
 
 
 def _number(kind, text: str, accepted: str, ok):
@@ -11,9 +12,18 @@ def _number(kind, text: str, accepted: str, ok):
         value = kind(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected {accepted}, got {text!r}") from None
-    if not ok(value):
+    if (kind is float and not math.isfinite(value)) or not ok(value):
         raise argparse.ArgumentTypeError(f"must be {accepted}, got {value}")
     return value
+
+
+def seed(text: str) -> int:
+    """A PRNG seed: an integer that fits in 64 bits (JAX's seeds are int64)."""
+    return _number(int, text, "an integer from -2^63 to 2^63 - 1", lambda v: -(2**63) <= v < 2**63)
+
+
+def element_count(text: str) -> int:
+    return _number(int, text, "an integer >= 3", lambda v: v >= 3)
 
 
 def nonneg_int(text: str) -> int:
@@ -34,9 +44,28 @@ def nonneg_float(text: str) -> float:
 
 def csv_floats(text: str) -> tuple[float, ...]:
     try:
-        return tuple(float(x) for x in text.split(",") if x.strip())
+        values = tuple(float(x) for x in text.split(",") if x.strip())
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
+    if not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(f"expected finite numbers, got {text!r}")
+    return values
+
+
+def csv_positive_floats(text: str) -> tuple[float, ...]:
+    """At least one comma-separated finite number, each > 0."""
+    values = csv_floats(text)
+    if not values or min(values) <= 0:
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers > 0 (at least one), got {text!r}")
+    return values
+
+
+def csv_nonneg_floats(text: str) -> tuple[float, ...]:
+    """Comma-separated finite numbers, each >= 0 (times in s)."""
+    values = csv_floats(text)
+    if values and min(values) < 0:
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers >= 0, got {text!r}")
+    return values
 
 
 def csv_ints(text: str) -> tuple[int, ...]:
@@ -49,3 +78,13 @@ def csv_ints(text: str) -> tuple[int, ...]:
 def csv_names(text: str) -> tuple[str, ...]:
     """``"force, energy"`` -> ``("force", "energy")`` (blank entries dropped)."""
     return tuple(c.strip() for c in text.split(",") if c.strip())
+
+
+def criteria(text: str) -> tuple[str, ...]:
+    """Comma-separated SL criteria, at least one, each ``force`` or ``energy``."""
+    names = csv_names(text)
+    if not names or any(c not in ("force", "energy") for c in names):
+        raise argparse.ArgumentTypeError(
+            f"expected comma-separated SL criteria among force, energy, got {text!r}"
+        )
+    return names

@@ -10,7 +10,15 @@ import json
 import time
 from pathlib import Path
 
-from ._types import csv_floats, csv_names, nonneg_int, positive_float, positive_int
+from ._types import (
+    criteria,
+    csv_nonneg_floats,
+    csv_positive_floats,
+    nonneg_int,
+    positive_float,
+    positive_int,
+    seed,
+)
 
 
 def _add_gear_pair_options(p: argparse.ArgumentParser, quick: bool) -> None:
@@ -36,15 +44,17 @@ def _add_gear_pair_options(p: argparse.ArgumentParser, quick: bool) -> None:
     )
     p.add_argument(
         "--criteria",
+        type=criteria,
         default="force,energy",
         help="comma-separated SL criteria among force, energy (default %(default)s)",
     )
     p.add_argument(
         "--pdf-times",
+        type=csv_nonneg_floats,
         default="0.03",
         help="comma-separated times in s for the PDF of the mesh deflection (default %(default)s)",
     )
-    p.add_argument("--seed", type=int, default=0, help="PRNG seed of the Monte Carlo (default %(default)s)")
+    p.add_argument("--seed", type=seed, default=0, help="PRNG seed of the Monte Carlo (default %(default)s)")
     p.add_argument(
         "--chunk-size",
         type=nonneg_int,
@@ -62,20 +72,21 @@ def _run_gear_pair(args) -> int:
 
     params, regimes = study.load_inputs(args.params)
     out = args.out or Path("pgtjax-output") / "gear_pair"
-    criteria = csv_names(args.criteria)
     print(
-        study.format_header(regimes, criteria=criteria, n_samples=args.samples, dt=args.dt, t_end=args.t_end)
+        study.format_header(
+            regimes, criteria=args.criteria, n_samples=args.samples, dt=args.dt, t_end=args.t_end
+        )
     )
     start = time.perf_counter()
     result = study.run_study(
         params,
         regimes=regimes,
-        criteria=criteria,
+        criteria=args.criteria,
         n_samples=args.samples,
         dt=args.dt,
         t_end=args.t_end,
         n_saves=args.saves,
-        pdf_times=csv_floats(args.pdf_times),
+        pdf_times=args.pdf_times,
         key=jax.random.key(args.seed),
         chunk_size=args.chunk_size,
         progress=not args.quiet,
@@ -90,7 +101,7 @@ def _run_gear_pair(args) -> int:
 def _run_step_study(args) -> int:
     from ..studies import gear_pair as study
 
-    rows = study.step_convergence(study.load_params(args.params), dts=csv_floats(args.dts), t_end=args.t_end)
+    rows = study.step_convergence(study.load_params(args.params), dts=args.dts, t_end=args.t_end)
     print(json.dumps(rows, indent=2) if args.json else study.format_step_table(rows))
     return 0
 
@@ -115,7 +126,12 @@ def register(subparsers) -> None:
         "gear-pair-step", help="time-step convergence study of the gear-pair SL moments"
     )
     step.add_argument("--params", type=Path, default=None, help="gear-pair parameter file (TOML)")
-    step.add_argument("--dts", default="4e-5,2e-5,1e-5,5e-6,2.5e-6", help="comma-separated steps in s")
+    step.add_argument(
+        "--dts",
+        type=csv_positive_floats,
+        default="4e-5,2e-5,1e-5,5e-6,2.5e-6",
+        help="comma-separated steps in s",
+    )
     step.add_argument("--t-end", type=positive_float, default=0.04, help="simulated time in s")
     step.add_argument("--json", action="store_true", help="print JSON instead of a table")
     step.set_defaults(func=_run_step_study)

@@ -11,7 +11,7 @@ import time
 from pathlib import Path
 
 from ._scale import add_scale_out_options, checkpoint_path, start_processes
-from ._types import csv_names, nonneg_int, positive_float, positive_int
+from ._types import criteria, element_count, nonneg_int, positive_float, positive_int, seed
 
 
 def _add_planetary_options(p: argparse.ArgumentParser, quick: bool) -> None:
@@ -42,17 +42,21 @@ def _add_planetary_options(p: argparse.ArgumentParser, quick: bool) -> None:
         help="SL is saved this many times as often as MC (default %(default)s: resolves the "
         "meshing frequency)",
     )
-    p.add_argument("--criteria", default="force", help="comma-separated SL criteria (force, energy)")
+    p.add_argument(
+        "--criteria", type=criteria, default="force", help="comma-separated SL criteria (force, energy)"
+    )
     p.add_argument(
         "--ring-model",
         choices=("elastic", "rigid"),
         default=None,
         help="override the parameter file's ring model",
     )
-    p.add_argument("--elements", type=nonneg_int, default=None, help="override the number of ring elements")
+    p.add_argument(
+        "--elements", type=element_count, default=None, help="override the number of ring elements"
+    )
     p.add_argument("--no-sweeps", action="store_true", help="skip the rim-thickness and support studies")
     p.add_argument("--no-sensitivities", action="store_true", help="skip the autodiff sensitivities")
-    p.add_argument("--seed", type=int, default=0, help="PRNG seed of the Monte Carlo")
+    p.add_argument("--seed", type=seed, default=0, help="PRNG seed of the Monte Carlo")
     p.add_argument("--chunk-size", type=nonneg_int, default=5000, help="MC samples per compiled batch")
     p.add_argument("--out", type=Path, default=None, help="output folder (default: pgtjax-output/planetary)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -75,14 +79,13 @@ def _run_planetary(args) -> int:
     process = start_processes(args)  # before any JAX computation
     params = _params(args)
     out = args.out or Path("pgtjax-output") / "planetary"
-    criteria = csv_names(args.criteria)
     study_kw = dict(
         n_samples=args.samples,
         dt=args.dt,
         periods=args.periods,
         n_saves=args.saves,
         sl_refine=args.sl_refine,
-        criteria=criteria,
+        criteria=args.criteria,
         key=jax.random.key(args.seed),
         chunk_size=args.chunk_size,
         checkpoint=checkpoint_path(args, out) if args.samples else None,
@@ -94,7 +97,7 @@ def _run_planetary(args) -> int:
         return 0
     print(
         study.format_header(
-            params, periods=args.periods, dt=args.dt, criteria=criteria, n_samples=args.samples
+            params, periods=args.periods, dt=args.dt, criteria=args.criteria, n_samples=args.samples
         )
     )
     if jax.process_count() > 1:
@@ -162,7 +165,7 @@ def register(subparsers) -> None:
         "--ring-model", choices=("elastic", "rigid"), default=None, help="override the ring model"
     )
     pmodal.add_argument(
-        "--elements", type=nonneg_int, default=None, help="override the number of ring elements"
+        "--elements", type=element_count, default=None, help="override the number of ring elements"
     )
     pmodal.add_argument("--json", action="store_true", help="print JSON instead of a table")
     pmodal.set_defaults(func=_run_planetary_modal)

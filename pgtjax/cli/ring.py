@@ -18,6 +18,7 @@ from pathlib import Path
 
 from ._types import csv_floats as _csv_floats
 from ._types import csv_ints as _csv_ints
+from ._types import element_count as _element_count
 from ._types import nonneg_int as _nonneg_int
 from ._types import positive_float as _positive_float
 
@@ -126,7 +127,7 @@ def _ring_file_options(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--n-elements",
-        type=int,
+        type=_element_count,
         default=None,
         help="number of curved-beam elements (a multiple of the bolt count; default: the file's)",
     )
@@ -173,7 +174,9 @@ def register(subparsers) -> None:
         default=33.5e-3,
         help="face width in m (ASSUMED, not in Table 5.1; default %(default)s)",
     )
-    free.add_argument("--n-elements", type=int, default=64, help="elements (default %(default)s = Z)")
+    free.add_argument(
+        "--n-elements", type=_element_count, default=64, help="elements (default %(default)s = Z)"
+    )
     free.add_argument("--json", action="store_true", help="print JSON instead of a table")
     free.add_argument(
         "--out",

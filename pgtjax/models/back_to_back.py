@@ -279,8 +279,7 @@ def load_params(path: str | Path | None = None, **overrides) -> BackToBackParams
 
     ``overrides`` replace fields of :class:`BackToBackParams` (e.g. ``sun_torque=200.0``).
     """
-    path = _params.path("back_to_back.toml") if path is None else Path(path)
-    data = _params.read_toml(path)
+    data = _params.read_params(path, "back_to_back")  # ValueError naming table.key for a bad entry
     try:
         meshes = ms.back_to_back_meshes(data)
         g, b, d, run = data["gears"], data["bench"], data["damping"], data["run_up"]
@@ -314,6 +313,11 @@ def load_params(path: str | Path | None = None, **overrides) -> BackToBackParams
             raise ValueError(f"`n_planets` must be {N_PLANETS} for the bench model; got {g['n_planets']!r}")
     except KeyError as err:
         raise ValueError(f"parameter file {path} lacks the entry {err}") from None
+    unknown = set(overrides) - set(fields)
+    if unknown:
+        raise ValueError(
+            f"unknown override(s) {sorted(unknown)} of load_params; known: {', '.join(sorted(fields))}"
+        )
     fields.update(overrides)
     fields = {k: (v if isinstance(v, ms.SpurMesh) else _f64(v)) for k, v in fields.items()}
     return BackToBackParams(**fields, table_points=table_points)

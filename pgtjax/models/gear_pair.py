@@ -20,7 +20,7 @@ highest natural frequency of (M, K) (Rayleigh fit). Both may be given directly i
 
 from __future__ import annotations
 
-from pathlib import Path
+import dataclasses
 
 import equinox as eqx
 import jax
@@ -77,15 +77,13 @@ class GearPairParams(eqx.Module):
 
     def replace(self, **changes) -> GearPairParams:
         """A copy with some fields changed (floats are converted to float64 arrays)."""
-        new = self
+        fields = {f.name for f in dataclasses.fields(self)}
         for name, value in changes.items():
-            if not hasattr(self, name):
-                raise ValueError(f"unknown gear-pair parameter {name!r}")
+            if name not in fields:
+                raise ValueError(f"unknown gear-pair parameter {name!r}; known: {', '.join(sorted(fields))}")
             if name not in ("teeth_1", "teeth_2", "rayleigh"):
-                value = jnp.asarray(value, dtype=jnp.float64)
-            new = eqx.tree_at(lambda p: getattr(p, name), new, value, is_leaf=lambda x: x is None)
-        validate(new)  # tree_at bypasses __check_init__
-        return new
+                changes[name] = jnp.asarray(value, dtype=jnp.float64)
+        return dataclasses.replace(self, **changes)  # __init__ and __check_init__ run: validated
 
 
 _POSITIVE = (
@@ -120,8 +118,10 @@ def validate(p: GearPairParams) -> None:
             )
     if np.shape(p.mesh_sin) != np.shape(p.mesh_cos):
         raise ValueError("`sin_coefficients` and `cos_coefficients` must have the same length")
-    if p.teeth_1 < 1 or p.teeth_2 < 1:
-        raise ValueError("`teeth_1` and `teeth_2` must be integers >= 1")
+    for name in ("teeth_1", "teeth_2"):
+        teeth = getattr(p, name)
+        if isinstance(teeth, bool) or not isinstance(teeth, int | np.integer) or teeth < 1:
+            raise ValueError(f"`{name}` must be an integer >= 1, got {teeth!r}")
 
 
 def _concrete(x) -> bool:
@@ -136,12 +136,7 @@ def default_params() -> GearPairParams:
 def load_params(source=None) -> GearPairParams:
     """Read a gear-pair parameter file (TOML, same layout as the embedded ``gear_pair.toml``) or a dict;
     ``None``: the embedded file. Values are checked on construction (``ValueError`` naming the entry)."""
-    if source is None:
-        source = _params.path("gear_pair.toml")
-    if isinstance(source, (str, Path)):
-        data = _params.read_toml(source)
-    else:
-        data = dict(source)
+    data = _params.read_params(source, "gear_pair")  # ValueError naming table.key for a bad entry
     try:
         g, m, d, e = data["gears"], data["mesh"], data["damping"], data["excitation"]
         f = lambda x: jnp.asarray(x, dtype=jnp.float64)  # noqa: E731
@@ -176,10 +171,9 @@ def load_params(source=None) -> GearPairParams:
 
 def load_regimes(source=None) -> list[tuple[str, float, float]]:
     """The ``[regimes]`` table of a parameter file: ``[(name, T_in, T_out), ...]`` (N m)."""
-    path = _params.path("gear_pair.toml") if source is None else source
-    r = _params.read_toml(path).get("regimes")
+    r = _params.read_params(source, "gear_pair").get("regimes")
     if r is None:
-        raise ValueError(f"{path} has no [regimes] table")
+        raise ValueError(f"parameter file `{source}` has no [regimes] table")
     return [(str(n), float(a), float(b)) for n, a, b in zip(r["names"], r["torque_in"], r["torque_out"])]
 
 
@@ -225,6 +219,8 @@ def build(p: GearPairParams | None = None) -> System:
     """Build the :class:`System` of Eq. 4.12 from parameters (default: :func:`default_params`); validated
     here too, since ``eqx.tree_at`` bypasses ``__check_init__``."""
     p = default_params() if p is None else p
+    if not isinstance(p, GearPairParams):
+        raise ValueError(f"`p` must be GearPairParams (gear_pair.load_params / default_params), got {p!r}")
     validate(p)
     mass = mass_matrix(p)
     g = jnp.asarray(CONTACT_DIRECTION)

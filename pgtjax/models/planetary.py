@@ -49,7 +49,6 @@ springs at their mean stiffness), or modal damping ratios (``model = "modal"``).
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import equinox as eqx
 import jax
@@ -59,7 +58,7 @@ import numpy as np
 from .. import params as _params
 from .._contact import Backlash
 from .._modal import symmetric_eigen
-from .._system import Contacts, System
+from .._system import Contacts, System, check_count
 from .._validate import check_range
 from .ring import RingParams, ring_dof_names, ring_interpolation, ring_matrices, ring_nodal_inverse
 
@@ -227,7 +226,12 @@ def load_params(source, **overrides) -> PlanetaryParams:
 
     ``overrides`` replace top-level choices: ``ring_model``, ``n_elements``, ``rim_thickness``.
     """
-    data = _params.read_toml(source) if isinstance(source, str | Path) else dict(source)
+    unknown = set(overrides) - {"ring_model", "n_elements", "rim_thickness"}
+    if unknown:
+        raise ValueError(
+            f"unknown override(s) {sorted(unknown)} of load_params; known: ring_model, n_elements, rim_thickness"
+        )
+    data = _params.read_params(source, "planetary")  # ValueError naming table.key for a bad entry
     try:
         s, p, c, r, m, w, d = (
             data[k] for k in ("sun", "planet", "carrier", "ring", "mesh", "wind", "damping")
@@ -238,7 +242,7 @@ def load_params(source, **overrides) -> PlanetaryParams:
         rs, rp = float(s["pitch_diameter"]) / 2, float(p["pitch_diameter"]) / 2
         r_pitch = float(r["pitch_diameter"]) / 2
         thickness = float(overrides.get("rim_thickness", r["rim_thickness"]))
-        n_el = int(overrides.get("n_elements", r["n_elements"]))
+        n_el = check_count("n_elements", overrides.get("n_elements", r["n_elements"]), minimum=3)
         n_sup = int(r["n_supports"])
         if n_sup < 0 or (n_sup and n_el % n_sup):
             raise ValueError(
@@ -638,6 +642,8 @@ def _damping(p: PlanetaryParams, lay: Layout, mass, k_mean):
 def build(p: PlanetaryParams | None = None) -> System:
     """Build the :class:`System` of thesis Eq. 3.43 / 3.54 (see the module docstring); ``None``: the
     embedded defaults. Parameters are validated here too, since ``eqx.tree_at`` bypasses ``__check_init__``."""
+    if p is not None and not isinstance(p, PlanetaryParams):
+        raise ValueError(f"`p` must be PlanetaryParams (planetary.load_params / default_params), got {p!r}")
     p = resolved(default_params() if p is None else p)
     validate(p)
     lay = layout(p)

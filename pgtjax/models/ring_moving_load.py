@@ -53,7 +53,6 @@ Units: SI (m, kg, N, s, rad); nodal rotations in rad, nodal moments in N m.
 from __future__ import annotations
 
 import math
-from pathlib import Path
 from typing import NamedTuple
 
 import equinox as eqx
@@ -63,7 +62,7 @@ import numpy as np
 
 from .. import params as _params
 from .._modal import symmetric_eigen
-from .._system import Observables, System
+from .._system import Observables, System, check_count
 from .._validate import check_range
 from .ring import (
     RingParams,
@@ -493,12 +492,10 @@ def load_params(
     ``n_elements`` overrides the mesh (bolts stay equally spaced, so it must be a multiple of the bolt count);
     ``support`` selects a ``[support_cases]`` entry (1, 2, 3) instead of ``[supports]``.
     """
-    if source is None:
-        source = _params.path("ring_ch6.toml")
-    data = _params.read_toml(source) if isinstance(source, str | Path) else dict(source)
+    data = _params.read_params(source, "ring_ch6")  # ValueError naming table.key for a bad entry
     try:
         r, s, ld, d = data["ring"], data["supports"], data["loads"], data.get("damping", {})
-        L = int(r["n_elements"]) if n_elements is None else int(n_elements)
+        L = int(r["n_elements"]) if n_elements is None else check_count("n_elements", n_elements, minimum=3)
         n_bolts = int(s["n_bolts"])
         if n_bolts < 0 or (n_bolts and L % n_bolts):
             raise ValueError(

@@ -14,6 +14,8 @@ def path(name: str) -> Path:
 def read_toml(path) -> dict:
     """Read a parameter file; a missing file or invalid TOML is a ``ValueError`` naming the file."""
     path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"parameter file `{path}` is a folder, not a TOML file")
     if not path.is_file():
         raise ValueError(f"parameter file `{path}` not found: it does not exist")
     try:
@@ -21,6 +23,39 @@ def read_toml(path) -> dict:
             return tomllib.load(fh)
     except tomllib.TOMLDecodeError as err:
         raise ValueError(f"parameter file `{path}` is not valid TOML: {err}") from None
+
+
+#: the embedded parameter file of each schema
+EMBEDDED = {
+    "planetary": "planetary.toml",
+    "gear_pair": "gear_pair.toml",
+    "ring_ch6": "ring_ch6.toml",
+    "back_to_back": "back_to_back.toml",
+}
+
+
+def read_params(source, kind: str) -> dict:
+    """A parameter set checked against its schema (:mod:`pgtjax.params._schema`): ``source`` is a TOML file
+    (str or Path), the dict of one, or None (the embedded file of ``kind``: ``"planetary"``, ``"gear_pair"``,
+    ``"ring_ch6"``, ``"back_to_back"``). Returns the checked dict, optional entries' defaults filled in. An
+    unknown key, a missing one, a wrong type, a value out of range or an inconsistent combination is a
+    ``ValueError`` naming the file and every offending ``table.key``."""
+    from .._config import require_x64
+    from ._schema import validate
+
+    require_x64("reading parameters")
+    if kind not in EMBEDDED:
+        raise ValueError(f"`kind` must be one of {sorted(EMBEDDED)}, got {kind!r}")
+    if source is None:
+        source = path(EMBEDDED[kind])
+    if isinstance(source, str | Path):
+        return validate(kind, read_toml(source), where=f"parameter file `{source}`")
+    if isinstance(source, dict):
+        return validate(kind, source)
+    raise ValueError(
+        f"parameters must be a TOML file path, a dict of its tables or None (the embedded {EMBEDDED[kind]}), "
+        f"got {type(source).__name__}"
+    )
 
 
 def _toml_value(value) -> str:

@@ -266,7 +266,7 @@ def run_study(
     ``back_to_back.toml``, read by :func:`pgtjax.params.read_toml`)."""
     p = bb.default_params() if params is None else params
     if t_end is None:
-        t_end = float(_params.read_toml(_params.path("back_to_back.toml"))["run_up"]["t_end_s"])
+        t_end = float(_params.read_params(None, "back_to_back")["run_up"]["t_end_s"])
     say = print if progress else (lambda *a, **k: None)
     regimes = []
     say(

@@ -20,6 +20,7 @@ import jax
 import numpy as np
 
 from .. import plots
+from .._contact import as_criterion
 from .._files import write_text
 from .._linearization import solve_moments
 from .._modal import modal_analysis
@@ -70,11 +71,14 @@ def step_convergence(params=None, *, dts=(4e-5, 2e-5, 1e-5, 5e-6, 2.5e-6), t_end
 
     Returns a list of dicts (dt, omega_max dt, mean, std, relative errors)."""
     params = gp.default_params() if params is None else params
+    steps = {dt: _whole_steps(t_end, dt) for dt in dts}  # every dt checked before any run
+    if not steps:
+        raise ValueError("`dts` must list at least one time step (s)")
     system = gp.build(params)
     w_max = float(modal_analysis(system).angular_frequencies[-1])
     rows = []
     for dt in dts:
-        n = int(round(t_end / dt))
+        n = steps[dt]
         r = solve_moments(system, dt=dt, n_steps=n, save_every=n, criterion=criterion)
         rows.append(
             dict(
@@ -86,6 +90,20 @@ def step_convergence(params=None, *, dts=(4e-5, 2e-5, 1e-5, 5e-6, 2.5e-6), t_end
         row["mean_rel_error"] = abs(row["mean"] - ref["mean"]) / abs(ref["mean"])
         row["std_rel_error"] = abs(row["std"] - ref["std"]) / ref["std"]
     return rows
+
+
+def _whole_steps(t_end, dt) -> int:
+    """``t_end / dt`` as a whole number of steps >= 1; ``ValueError`` naming both otherwise."""
+    for name, value in (("t_end", t_end), ("dt", dt)):
+        if not (isinstance(value, int | float) and np.isfinite(value) and value > 0):
+            raise ValueError(f"`{name}` must be a finite number of seconds > 0, got {value!r}")
+    n = int(round(t_end / dt))
+    if n < 1 or abs(n * dt - t_end) > 1e-9 * t_end:
+        raise ValueError(
+            f"`t_end` ({t_end:g} s) must be a whole number (>= 1) of time steps `dt` ({dt:g} s); "
+            f"t_end / dt = {t_end / dt:.6g}"
+        )
+    return n
 
 
 def load_params(path=None) -> gp.GearPairParams:
@@ -119,7 +137,12 @@ def run_study(
     params = gp.default_params() if params is None else params
     regimes = gp.load_regimes() if regimes is None else regimes
     key = jax.random.key(0) if key is None else key
-    n_steps = int(round(t_end / dt))
+    n_steps = _whole_steps(t_end, dt)
+    late = [t for t in pdf_times if not 0.0 <= t <= t_end]
+    if n_samples and late:
+        raise ValueError(f"`pdf_times` must lie within the run, [0, {t_end:g}] s (`t_end`), got {late}")
+    for criterion in criteria:
+        as_criterion(criterion)
     save_every = max(n_steps // n_saves, 1)
     n_steps = save_every * (n_steps // save_every)
     b = float(params.half_backlash)

@@ -407,11 +407,11 @@ def load_params(
     path=None, *, ring_model: str | None = None, n_elements: int | None = None
 ) -> pm.PlanetaryParams:
     """Parameters from a TOML file (layout of ``planetary.toml``; ``None``: the embedded thesis set), with the
-    ring model and the number of ring elements overridden when given (``None`` or 0: the file's)."""
+    ring model and the number of ring elements overridden when given (``None``: the file's)."""
     overrides = {}
     if ring_model:
         overrides["ring_model"] = ring_model
-    if n_elements:
+    if n_elements is not None:
         overrides["n_elements"] = n_elements
     return pm.load_params(path, **overrides) if path is not None else pm.default_params(**overrides)
 

@@ -330,6 +330,9 @@ def run_study(
     """All ch. 6 studies (module docstring). ``sweep_speeds=()`` skips the sweep; defaults are the quick size
     (a third of a revolution, 48 sweep speeds); ``revolutions=1`` and a finer sweep give the thesis's views."""
     p = rml.default_params() if p is None else p
+    bad = [c for c in support_cases if c not in rml.SUPPORT_CASES]
+    if bad:
+        raise ValueError(f"`support_cases` (--supports) must be among 1, 2, 3 (Sec. 6.4.3), got {bad}")
     say = print if progress else (lambda *a, **k: None)
     say(f"  base case: omega_c = {float(p.carrier_speed):g} rad/s, MC {n_samples} samples")
     base = run_response(p, revolutions=revolutions, dt=dt, n_modes=n_modes, n_samples=n_samples)
