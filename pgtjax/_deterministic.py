@@ -138,7 +138,7 @@ def static_equilibrium(
     the contact law's parameters included. Raises ``RuntimeError`` (also under ``jit``) if Newton does not
     reach a relative residual ``tol`` in ``max_iter`` iterations, e.g. for a mechanism held only by open
     contacts."""
-    validate_system(system, t)
+    validate_system(system, t, time_name="t")
     if isinstance(tol, bool) or not isinstance(tol, numbers.Real) or not 0.0 < tol < 1.0:
         raise ValueError(f"`tol` must be a number in (0, 1), got {tol!r}")
     max_iter = check_count("max_iter", max_iter)

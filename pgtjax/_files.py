@@ -3,8 +3,13 @@ run leaves the previous file (or none), never a truncated one under the final na
 
 from __future__ import annotations
 
+import datetime
+import hashlib
 import json
 import os
+import platform
+import shutil
+import sys
 from collections.abc import Callable
 from pathlib import Path
 
@@ -27,3 +32,102 @@ def write_text(path, text: str) -> Path:
 
 def write_json(path, data) -> Path:
     return write_text(path, json.dumps(data, indent=2, default=float) + "\n")
+
+
+MANIFEST = "manifest.json"
+PREVIOUS = "previous-run"
+
+#: the folder a run is writing now and the output folder being replaced: what an interrupt must report
+_state: dict[str, Path | None] = {"staging": None, "publishing": None}
+
+
+def _digest(path: Path) -> str:
+    sha = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            sha.update(block)
+    return sha.hexdigest()
+
+
+def _manifest(out: Path, files: list[Path], in_place: list[Path], status: str, command) -> dict:
+    from . import __version__
+
+    def entry(path: Path, kept: bool) -> dict:
+        try:
+            name = path.resolve().relative_to(out.resolve()).as_posix()
+        except ValueError:  # written elsewhere (a checkpoint named on the command line)
+            name = str(path.resolve())
+        info = {"name": name, "bytes": path.stat().st_size, "sha256": _digest(path)}
+        return {**info, "written_during_the_run": True} if kept else info
+
+    return {
+        "status": status,
+        "command": list(sys.argv) if command is None else list(command),
+        "pgtjax": __version__,
+        "python": platform.python_version(),
+        "written": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        "files": [entry(p, False) for p in files] + [entry(p, True) for p in in_place],
+    }
+
+
+def _previous_files(out: Path) -> list[Path]:
+    """The files the previous run's manifest lists as its own outputs (not those written in place)."""
+    try:
+        listed = json.loads((out / MANIFEST).read_text())["files"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return []
+    return [out / f["name"] for f in listed if isinstance(f, dict) and not f.get("written_during_the_run")]
+
+
+def publish(out, write: Callable[[Path], list[Path]], *, command=None) -> list[Path]:
+    """Write a run's outputs into the folder ``out`` so that no interrupted or failed run leaves a set that
+    looks complete. ``write(folder)`` writes the files into a hidden staging folder inside ``out`` and returns
+    their paths (paths it returns outside that folder, e.g. a checkpoint written during the run, are listed
+    but not moved). Then ``manifest.json`` is marked incomplete, the files of the previous run (those its
+    manifest lists) are moved to ``out/previous-run/``, the new files are moved in, and ``manifest.json``
+    (status, command line, version, and every file with its size and SHA-256) is written last. Returns the
+    final paths."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    staging = out / f".partial-{os.getpid()}"
+    shutil.rmtree(staging, ignore_errors=True)
+    staging.mkdir()
+    _state["staging"] = staging
+    try:
+        written = [Path(p) for p in write(staging)]
+        staged = [p for p in written if staging.resolve() in p.resolve().parents]
+        in_place = [p for p in written if p not in staged]
+        old = [p for p in _previous_files(out) if p.is_file()]  # read before it is marked incomplete
+        _state["publishing"] = out
+        write_json(
+            out / MANIFEST, {"status": "incomplete: a new run is replacing these outputs", "files": []}
+        )
+        previous = out / PREVIOUS
+        if old:
+            shutil.rmtree(previous, ignore_errors=True)
+            for path in old:
+                target = previous / path.relative_to(out)
+                target.parent.mkdir(parents=True, exist_ok=True)
+                os.replace(path, target)
+        final = []
+        for path in staged:
+            target = out / path.relative_to(staging)
+            target.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(path, target)
+            final.append(target)
+        write_json(out / MANIFEST, _manifest(out, final, in_place, "complete", command))
+        return final + in_place
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+        _state["staging"] = _state["publishing"] = None
+
+
+def interrupted_message() -> str:
+    """What an interrupt leaves behind, in one line (for the CLI's Ctrl-C handler, which also removes the
+    staging folder)."""
+    staging, publishing = _state["staging"], _state["publishing"]
+    if staging is not None:
+        shutil.rmtree(staging, ignore_errors=True)
+    if publishing is not None:
+        return f"interrupted while replacing the outputs in {str(publishing)!r}: its manifest.json marks them incomplete"
+    return "interrupted: no output files written (earlier outputs unchanged)"

@@ -31,7 +31,7 @@ def modal_analysis(system: System, t: float = 0.0, *, include_contacts: bool = T
     With ``include_contacts`` the contacts are taken as closed linear springs of their current stiffness
     (``K + G diag(k) G^T``), the usual choice for gear meshes in contact.
     """
-    validate_system(system, t)
+    validate_system(system, t, time_name="t")
     t = jnp.asarray(t, jnp.float64)
     k = at_time(system.stiffness, t)
     if include_contacts and system.n_contacts:

@@ -299,6 +299,20 @@ def _checkpoint_path(checkpoint, resume: bool, n_proc: int, proc: int) -> Path |
     return path
 
 
+def check_options(n_samples, chunk_size, checkpoint=None, resume: bool = False, *, distributed=True):
+    """The sizes and checkpoint options of :func:`monte_carlo`, checked before any computation (a study calls
+    this before its other work, so that a bad option fails at once). Returns this process's checkpoint path."""
+    check_count("n_samples", n_samples, minimum=2)
+    check_count("chunk_size", chunk_size)
+    n_proc, proc = (jax.process_count(), jax.process_index()) if distributed else (1, 0)
+    path = _checkpoint_path(checkpoint, resume, n_proc, proc)
+    if resume and not path.is_file():
+        raise ValueError(
+            f"cannot resume monte_carlo: no checkpoint at {str(path)!r}; run without resume to start"
+        )
+    return path
+
+
 def _gather_processes(moments: _Moments, cov_columns) -> _Moments:
     """Merge every process's statistics, in process order; every process gets the merged result."""
     from jax.experimental import multihost_utils
@@ -379,8 +393,7 @@ def monte_carlo(
     check_stability(system, t0, horizon=n_steps * float(dt))
     check_contact_stiffness_over_time(system, t0, dt, n_steps)
     integrator = resolve_integrator(integrator, noise_scheme)
-    check_count("n_samples", n_samples, minimum=2)
-    check_count("chunk_size", chunk_size)
+    check_options(n_samples, chunk_size, checkpoint, resume, distributed=distributed)
     if propagation not in PROPAGATIONS:
         raise ValueError(f"`propagation` must be one of {PROPAGATIONS}, got {propagation!r}")
     eigen = None

@@ -366,11 +366,11 @@ def load_results(path):
         kwargs[name] = tuple(value) if isinstance(value, list) else value
     for name in dict_fields:
         kwargs.setdefault(name, {})
+    _check_loaded_shapes(kwargs, path)
     try:
         result = cls(**kwargs)
     except (TypeError, ValueError) as err:
         raise ValueError(f"{str(path)!r} is not a complete pgtjax result file: {err}") from None
-    _check_loaded_shapes(result, path)
     return result, attributes
 
 
@@ -380,14 +380,13 @@ def _as_path(path) -> Path:
     return Path(path)
 
 
-def _check_loaded_shapes(result, path) -> None:
+def _check_loaded_shapes(fields: dict, path) -> None:
     """``ValueError`` naming the file if a loaded array does not fit the result's times and labels."""
-    n_times = result.times.shape[0] if result.times.ndim == 1 else -1
-    columns = {
-        "dof_names": len(result.dof_names),
-        "contact_names": len(result.contact_names),
-        "observable_names": len(getattr(result, "observable_names", ())),
-    }
+    times = fields.get("times")
+    if times is None or times.ndim != 1:
+        raise ValueError(f"{str(path)!r} is not a complete pgtjax result file: no 1-D `times`")
+    n_times = times.shape[0]
+    columns = {name: len(fields.get(name, ())) for name in ("dof_names", "contact_names", "observable_names")}
     expected = {
         "mean_u": "dof_names", "std_u": "dof_names", "mean_v": "dof_names", "std_v": "dof_names",
         "u": "dof_names", "v": "dof_names", "mean_delta": "contact_names", "std_delta": "contact_names",
@@ -396,7 +395,7 @@ def _check_loaded_shapes(result, path) -> None:
         "std_obs": "observable_names",
     }  # fmt: skip
     for name, labels in expected.items():
-        value = getattr(result, name, None)
+        value = fields.get(name)
         if value is not None and tuple(value.shape) != (n_times, columns[labels]):
             raise ValueError(
                 f"{str(path)!r} is not a consistent pgtjax result file: `{name}` has shape {tuple(value.shape)}, "

@@ -42,11 +42,11 @@ def as_float_array(name: str, value) -> jax.Array:
         raise ValueError(f"`{name}` must be numbers (an array), got {value!r} ({err})") from None
 
 
-def check_names(what: str, names: Sequence[str], count: int) -> tuple[str, ...]:
+def check_names(what: str, names: Sequence[str], count: int, per: str = "entry") -> tuple[str, ...]:
     """``names`` as a tuple: ``count`` distinct strings (results are looked up by name)."""
     names = tuple(names)
     if len(names) != count or not all(isinstance(x, str) for x in names):
-        raise ValueError(f"`{what}` must be {count} strings (one per entry), got {names!r}")
+        raise ValueError(f"`{what}` must be {count} strings (one per {per}), got {names!r}")
     repeated = sorted({x for x in names if names.count(x) > 1})
     if repeated:
         raise ValueError(f"`{what}` must be distinct (results are looked up by name); repeated: {repeated}")
@@ -252,6 +252,8 @@ class System(eqx.Module):
         dof_units: Sequence[str] | None = None,
     ):
         self.mass = jnp.atleast_2d(as_float_array("mass", mass))
+        if self.mass.ndim != 2 or self.mass.shape[0] != self.mass.shape[1]:
+            raise ValueError(f"`mass` must be a square (n_dof, n_dof) matrix, got shape {self.mass.shape}")
         n = self.mass.shape[0]
         as_field = lambda name, x: x if callable(x) else as_float_array(name, x)  # noqa: E731
         self.stiffness = as_field("stiffness", stiffness)
@@ -278,7 +280,10 @@ class System(eqx.Module):
             raise ValueError(f"`contacts` must be a pgtjax.Contacts or None, got {type(contacts).__name__}")
         self.contacts = contacts
         self.dof_names = check_names(
-            "dof_names", dof_names if dof_names is not None else [f"q{i}" for i in range(n)], n
+            "dof_names",
+            dof_names if dof_names is not None else [f"q{i}" for i in range(n)],
+            n,
+            per=f"DOF of the {n} x {n} `mass`",
         )
         self.dof_units = tuple(dof_units) if dof_units is not None else ("m",) * n
 
@@ -341,13 +346,13 @@ def _check_shape(name: str, value, shape: tuple[int, ...]) -> None:
         raise ValueError(f"`{name}` must have shape {shape}, got {tuple(jnp.shape(value))}")
 
 
-def validate_system(system: System, t0: float = 0.0) -> None:
+def validate_system(system: System, t0: float = 0.0, *, time_name: str = "t0") -> None:
     """Raise ``ValueError`` for inconsistent shapes, non-finite values or a mass matrix that is not
     symmetric positive definite. Value checks are skipped for traced arrays (inside ``jit``/``grad``)."""
     require_x64("the solvers")
     if not isinstance(system, System):
         raise ValueError(f"`system` must be a pgtjax.System, got {type(system).__name__}")
-    check_time("t0", t0)
+    check_time(time_name, t0)
     n = system.n_dof
     M = system.mass
     _check_shape("mass", M, (n, n))

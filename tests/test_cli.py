@@ -1,9 +1,6 @@
-"""The command line's handling of unusable output folders and of Ctrl-C."""
+"""The command line's handling of unusable output folders (Ctrl-C: ``test_safe_outputs.py``)."""
 
 import os
-import signal
-import subprocess
-import sys
 import time
 
 import pytest
@@ -34,28 +31,3 @@ def test_out_inside_a_read_only_folder_is_refused(tmp_path, capsys):
         assert "--out" in capsys.readouterr().err
     finally:
         locked.chmod(0o700)
-
-
-def test_ctrl_c_exits_130_with_one_line(tmp_path):
-    """SIGINT while a study computes: exit status 130 and one line on stderr, no traceback."""
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
-    argv = [sys.executable, "-m", "pgtjax.cli", "gear-pair", "--samples", "200000", "--quiet"]
-    proc = subprocess.Popen(
-        [*argv, "--out", str(tmp_path / "out")],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env=env,
-    )
-    out = tmp_path / "out"
-    deadline = time.monotonic() + 120.0
-    while not out.exists() and time.monotonic() < deadline:  # main() creates it just before the study
-        assert proc.poll() is None, proc.communicate()
-        time.sleep(0.1)
-    time.sleep(1.0)  # inside the study
-    assert proc.poll() is None, proc.communicate()
-    proc.send_signal(signal.SIGINT)
-    _, err = proc.communicate(timeout=120)
-    assert proc.returncode == 130, err
-    lines = [line for line in err.splitlines() if line.strip()]
-    assert len(lines) == 1 and lines[0].startswith("pgtjax: interrupted"), err

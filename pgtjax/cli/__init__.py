@@ -18,6 +18,7 @@ import threading
 from pathlib import Path
 
 from .._failure import SolverError
+from .._files import interrupted_message
 from . import back_to_back, design, gear_pair, planetary, ring
 
 __all__ = ["build_parser", "main"]
@@ -60,14 +61,13 @@ def main(argv=None) -> int:
         parser.print_help()
         return 0
     out = getattr(args, "out", None)
-    where = f"; files already in {str(out)!r} may be incomplete" if out is not None else ""
-    if getattr(args, "resume", None) is not None:
-        where += "; the same command with --resume continues from the last checkpoint"
+    resume = getattr(args, "resume", None) is not None
+    hint = "; the same command with --resume continues from the last checkpoint" if resume else ""
 
     def interrupted(signum, frame):
         # leave from the handler itself: a KeyboardInterrupt raised inside a callback (JAX's garbage-collection
         # hook, say) is swallowed there, and the interpreter's teardown while XLA threads run can crash
-        os.write(2, f"pgtjax: interrupted{where}\n".encode())
+        os.write(2, f"pgtjax: {interrupted_message()}{hint}\n".encode())
         os._exit(130)
 
     main_thread = threading.current_thread() is threading.main_thread()  # handlers live there only

@@ -12,6 +12,7 @@ import json
 import time
 from pathlib import Path
 
+from .._files import publish
 from ._types import nonneg_float as _nonnegative_float
 from ._types import positive_float as _positive_float
 from ._types import positive_int as _positive_int
@@ -50,7 +51,7 @@ def _run(args) -> int:
         progress=not args.quiet,
     )
     print("  writing results and figures ...", flush=True)
-    written = study.write_outputs(result, out)
+    written = publish(out, lambda folder: study.write_outputs(result, folder))
     print(study.format_hertz(result.hertz))
     print(study.format_ridges(result.ridges))
     print(

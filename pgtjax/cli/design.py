@@ -7,6 +7,7 @@ import argparse
 import time
 from pathlib import Path
 
+from .._files import publish
 from ._types import positive_int
 
 
@@ -48,7 +49,10 @@ def _run_optimize(args) -> int:
     result = study.run_design(
         params, spec, history=history, resume=args.resume, pareto=not args.no_pareto, say=say
     )
-    written = study.write_outputs(result, spec, out, data)
+    during = [
+        p for p in (history, history.with_name(history.name + ".state.npz")) if p.is_file()
+    ]  # resumable state
+    written = publish(out, lambda folder: study.write_outputs(result, spec, folder, data) + during)
     s = study.summary(result, spec)
     print(
         f"objective ({s['objective']['name']}, {s['objective']['unit']}): symmetric "

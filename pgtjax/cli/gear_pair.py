@@ -10,6 +10,7 @@ import json
 import time
 from pathlib import Path
 
+from .._files import publish
 from ._types import (
     criteria,
     csv_nonneg_floats,
@@ -51,8 +52,8 @@ def _add_gear_pair_options(p: argparse.ArgumentParser, quick: bool) -> None:
     p.add_argument(
         "--pdf-times",
         type=csv_nonneg_floats,
-        default="0.03",
-        help="comma-separated times in s for the PDF of the mesh deflection (default %(default)s)",
+        default=None,
+        help="comma-separated times in s for the PDF of the mesh deflection (default: 3/4 of --t-end, 0.03 s)",
     )
     p.add_argument("--seed", type=seed, default=0, help="PRNG seed of the Monte Carlo (default %(default)s)")
     p.add_argument(
@@ -91,7 +92,7 @@ def _run_gear_pair(args) -> int:
         chunk_size=args.chunk_size,
         progress=not args.quiet,
     )
-    written = study.write_outputs(result, out)
+    written = publish(out, lambda folder: study.write_outputs(result, folder))
     if args.samples:
         print(study.format_error_table(study.error_table(result)))
     print(f"done in {time.perf_counter() - start:.1f} s; {len(written)} files written to {out.resolve()}")

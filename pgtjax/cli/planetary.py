@@ -10,6 +10,7 @@ import json
 import time
 from pathlib import Path
 
+from .._files import publish
 from ._scale import add_scale_out_options, checkpoint_path, start_processes
 from ._types import criteria, element_count, nonneg_int, positive_float, positive_int, seed
 
@@ -114,7 +115,15 @@ def _run_planetary(args) -> int:
     step("modal analysis")
     modal = study.modal_table(params)
     sens = None if args.no_sensitivities else study.elastic_sensitivities(params, dt=args.dt, say=step)
-    written = study.write_outputs(result, out, sweeps=sweeps, modal=modal, sens=sens)
+    checkpoint = (
+        [study_kw["checkpoint"]] if study_kw["checkpoint"] and study_kw["checkpoint"].is_file() else []
+    )
+    written = publish(
+        out,
+        lambda folder: (
+            study.write_outputs(result, folder, sweeps=sweeps, modal=modal, sens=sens) + checkpoint
+        ),
+    )
     if result.mc is not None:
         print(study.format_error_summary(study.error_summary(result)))
     if sens is not None:

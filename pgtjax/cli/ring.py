@@ -16,6 +16,7 @@ import sys
 import time
 from pathlib import Path
 
+from .._files import publish
 from ._types import csv_floats as _csv_floats
 from ._types import csv_ints as _csv_ints
 from ._types import element_count as _element_count
@@ -68,8 +69,11 @@ def _run_free_vibration(args) -> int:
     )
     print(json.dumps(fv.json_table(table), indent=2) if args.json else fv.format_table(table))
     if args.out is not None:
-        written = fv.write_outputs(
-            args.out, pitch_radius=args.pitch_radius, face_width=args.face_width, n_elements=args.n_elements
+        written = publish(
+            args.out,
+            lambda folder: fv.write_outputs(
+                folder, pitch_radius=args.pitch_radius, face_width=args.face_width, n_elements=args.n_elements
+            ),
         )
         print(f"{len(written)} files written to {Path(args.out).resolve()}")
     return 0
@@ -106,7 +110,7 @@ def _run_moving_load(args) -> int:
         support_cases=args.supports,
         progress=not args.quiet,
     )
-    written = study.write_outputs(result, out)
+    written = publish(out, lambda folder: study.write_outputs(result, folder))
     print(study.format_summary(result))
     print(
         f"done in {time.perf_counter() - start:.1f} s; {len(written)} files written to {Path(out).resolve()}"

@@ -69,6 +69,8 @@ def _toml_value(value) -> str:
         return json.dumps(value)  # a JSON string is a valid TOML basic string
     if isinstance(value, (list, tuple)):
         return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    if isinstance(value, dict):  # an inline table
+        return "{ " + ", ".join(f"{k} = {_toml_value(v)}" for k, v in value.items()) + " }"
     raise ValueError(f"cannot write {value!r} ({type(value).__name__}) to a parameter file")
 
 
@@ -79,8 +81,8 @@ def _is_table_array(value) -> bool:
 def _table_lines(name: str, table: dict, brackets: str) -> list[str]:
     lines = ["", f"{brackets[0]}{name}{brackets[1]}"]
     for key, value in table.items():
-        if isinstance(value, dict) or _is_table_array(value):
-            raise ValueError(f"nested table {name}.{key} is not supported")
+        if _is_table_array(value):
+            raise ValueError(f"an array of tables inside a table ({name}.{key}) is not supported")
         lines.append(f"{key} = {_toml_value(value)}")
     return lines
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import math
 import time
 from pathlib import Path
 
@@ -88,6 +89,27 @@ def load_spec(source=None) -> DesignSpec:
         "unit": (str, ""),
     }
     variables = [_entry("variables", v, var_keys, f"[[variables]] #{i + 1}") for i, v in enumerate(variables)]
+    for key in ("periods", "dt"):
+        if not (math.isfinite(horizon[key]) and horizon[key] > 0):
+            raise ValueError(
+                f"design spec [horizon]: `{key}` must be a finite number > 0, got {horizon[key]!r}"
+            )
+    for i, v in enumerate(variables):
+        where = f"design spec [[variables]] #{i + 1}"
+        if v["path"] not in pm.PARAMETER_FILE_KEYS:
+            raise ValueError(
+                f"{where}: unknown or unsupported path {v['path']!r}; supported: {', '.join(pm.PARAMETER_FILE_KEYS)}"
+            )
+        if v["transform"] not in pd._variables.TRANSFORMS:
+            raise ValueError(
+                f"{where}: `transform` must be one of {', '.join(pd._variables.TRANSFORMS)}, got {v['transform']!r}"
+            )
+        if not (math.isfinite(v["lower"]) and math.isfinite(v["upper"]) and v["lower"] < v["upper"]):
+            raise ValueError(
+                f"{where}: `lower` ({v['lower']!r}) must be finite and below `upper` ({v['upper']!r})"
+            )
+        if v["transform"] == "log" and v["lower"] <= 0:
+            raise ValueError(f"{where}: a log transform needs `lower` > 0, got {v['lower']!r}")
     objective = _entry(
         "objective",
         data.get("objective", {}),

@@ -24,6 +24,7 @@ from .._contact import as_criterion
 from .._files import write_text
 from .._linearization import solve_moments
 from .._modal import modal_analysis
+from .._montecarlo import check_options as check_monte_carlo_options
 from .._montecarlo import monte_carlo
 from .._results import MomentResult, MonteCarloResult, save_results
 from ..models import gear_pair as gp
@@ -127,22 +128,26 @@ def run_study(
     dt: float = 1e-5,
     t_end: float = 0.04,
     n_saves: int = 80,
-    pdf_times=(0.03,),
+    pdf_times=None,
     key=None,
     chunk_size: int = 10_000,
     progress: bool = True,
 ) -> GearPairStudy:
     """Run the three regimes. ``regimes`` = [(name, T_in, T_out)] (default: the parameter file's);
-    ``n_samples = 0`` skips Monte Carlo."""
+    ``n_samples = 0`` skips Monte Carlo; ``pdf_times`` (s) where MC histograms the mesh deflection (default:
+    3/4 of ``t_end``; each reported at the nearest saved time)."""
     params = gp.default_params() if params is None else params
     regimes = gp.load_regimes() if regimes is None else regimes
     key = jax.random.key(0) if key is None else key
     n_steps = _whole_steps(t_end, dt)
+    pdf_times = (0.75 * t_end,) if pdf_times is None else tuple(pdf_times)
     late = [t for t in pdf_times if not 0.0 <= t <= t_end]
     if n_samples and late:
         raise ValueError(f"`pdf_times` must lie within the run, [0, {t_end:g}] s (`t_end`), got {late}")
     for criterion in criteria:
         as_criterion(criterion)
+    if n_samples:
+        check_monte_carlo_options(n_samples, chunk_size)  # before SL: fail at once
     save_every = max(n_steps // n_saves, 1)
     n_steps = save_every * (n_steps // save_every)
     b = float(params.half_backlash)

@@ -24,10 +24,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import plots
+from .._contact import as_criterion
 from .._deterministic import static_equilibrium
 from .._files import write_text
 from .._linearization import solve_moments
 from .._modal import modal_analysis
+from .._montecarlo import check_options as check_monte_carlo_options
 from .._montecarlo import monte_carlo
 from .._results import MomentResult, MonteCarloResult, save_results
 from .._system import Observables, check_count
@@ -155,6 +157,8 @@ def run_study(
     criteria = tuple(criteria)
     if not criteria:
         raise ValueError("`criteria` must name at least one SL criterion (force, energy)")
+    for criterion in criteria:
+        as_criterion(criterion)
     if n_samples != 0:  # Monte Carlo needs two samples for a standard deviation
         try:
             check_count("n_samples", n_samples, minimum=2)
@@ -162,6 +166,7 @@ def run_study(
             raise ValueError(
                 f"`n_samples` must be 0 (no Monte Carlo) or an integer >= 2, got {n_samples!r}"
             ) from None
+        check_monte_carlo_options(n_samples, chunk_size, checkpoint, resume)  # before SL: fail at once
     system, kw, mc_every, sl_every = _setup(p, dt, periods, n_saves, sl_refine)
     sl = {c: solve_moments(system, criterion=c, save_every=sl_every, **kw) for c in criteria}
     mc = None

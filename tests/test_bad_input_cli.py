@@ -1,0 +1,172 @@
+"""The command line's counterpart of ``test_bad_input.py``: every bad option or file is refused with exit
+status 2 and one line that names the option or file, before any study computes."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+
+from pgtjax import params as embedded
+from pgtjax.cli import main
+
+
+def _planetary_file(tmp_path, change):
+    import tomllib
+
+    with open(embedded.path("planetary.toml"), "rb") as fh:
+        data = tomllib.load(fh)
+    change(data)
+    path = tmp_path / "params.toml"
+    path.write_text(embedded.dumps_toml(data))
+    return str(path)
+
+
+def _design_file(tmp_path, text):
+    path = tmp_path / "design.toml"
+    path.write_text(embedded.path("design.toml").read_text().replace(*text))
+    return str(path)
+
+
+# (id, argv (a function of tmp_path), text the one-line error must contain)
+CASES = [
+    ("huge seed", lambda d: ["gear-pair", "--seed", "99999999999999999999999"], "--seed"),
+    ("planetary huge seed", lambda d: ["planetary", "--seed", "1e3"], "--seed"),
+    ("dts zero", lambda d: ["gear-pair-step", "--dts", "0"], "--dts"),
+    ("dts NaN", lambda d: ["gear-pair-step", "--dts", "nan"], "--dts"),
+    ("dts empty", lambda d: ["gear-pair-step", "--dts", ""], "--dts"),
+    ("dts a word", lambda d: ["gear-pair-step", "--dts", "abc"], "--dts"),
+    ("dts not dividing t_end", lambda d: ["gear-pair-step", "--dts", "3e-4", "--t-end", "1e-3"], "`t_end`"),
+    ("t_end below the step", lambda d: ["gear-pair-step", "--t-end", "1e-9"], "`t_end`"),
+    ("criteria empty", lambda d: ["gear-pair", "--criteria", ","], "--criteria"),
+    ("criteria unknown", lambda d: ["gear-pair", "--criteria", "bogus"], "--criteria"),
+    ("criteria energy_origin", lambda d: ["planetary", "--criteria", "energy_origin"], "--criteria"),
+    ("t_end inf", lambda d: ["gear-pair", "--t-end", "inf"], "--t-end"),
+    ("dt NaN", lambda d: ["gear-pair", "--dt", "nan"], "--dt"),
+    ("dt negative", lambda d: ["planetary", "--dt", "-1"], "--dt"),
+    ("pdf time a word", lambda d: ["gear-pair", "--pdf-times", "abc"], "--pdf-times"),
+    (
+        "pdf time after the end",
+        lambda d: ["gear-pair", "--pdf-times", "99", "--out", str(d / "o")],
+        "`pdf_times`",
+    ),
+    (
+        "t_end below dt",
+        lambda d: ["gear-pair", "--dt", "1e-3", "--t-end", "1e-4", "--out", str(d / "o")],
+        "`t_end`",
+    ),
+    ("samples negative", lambda d: ["gear-pair", "--samples", "-1"], "--samples"),
+    ("samples one", lambda d: ["gear-pair", "--samples", "1", "--out", str(d / "o")], "`n_samples`"),
+    ("chunk size zero", lambda d: ["planetary", "--chunk-size", "0", "--out", str(d / "o")], "`chunk_size`"),
+    ("planetary elements zero", lambda d: ["planetary-modal", "--elements", "0"], "--elements"),
+    ("planetary elements not a multiple", lambda d: ["planetary-modal", "--elements", "5"], "`n_supports`"),
+    ("ring elements zero", lambda d: ["ring-modal", "--n-elements", "0"], "--n-elements"),
+    ("ring free vibration elements", lambda d: ["ring-free-vibration", "--n-elements", "2"], "--n-elements"),
+    ("ring support case", lambda d: ["ring-modal", "--support", "4"], "--support"),
+    (
+        "ring moving-load supports",
+        lambda d: ["ring-moving-load", "--supports", "4", "--out", str(d / "o")],
+        "--supports",
+    ),  # fmt: skip
+    ("ring revolutions negative", lambda d: ["ring-moving-load", "--revolutions", "-1"], "--revolutions"),
+    ("params missing", lambda d: ["gear-pair", "--params", str(d / "nope.toml")], "nope.toml"),
+    ("params a folder", lambda d: ["gear-pair-modal", "--params", str(d)], "is a folder"),
+    (
+        "params not TOML",
+        lambda d: ["gear-pair-modal", "--params", str(_text(d, "x = = 1"))],
+        "not valid TOML",
+    ),
+    (
+        "params misspelt key",
+        lambda d: ["planetary-modal", "--params", _planetary_file(d, lambda p: p.update(n_planet=3))],
+        "`n_planet`",
+    ),  # fmt: skip
+    (
+        "params 2.7 planets",
+        lambda d: ["planetary-modal", "--params", _planetary_file(d, lambda p: p.update(n_planets=2.7))],
+        "`n_planets` = 2.7",
+    ),  # fmt: skip
+    ("out a regular file", lambda d: ["gear-pair", "--out", str(_text(d, "x"))], "--out"),
+    ("out not creatable", lambda d: ["gear-pair", "--out", "/proc/pgtjax-cannot-exist"], "--out"),
+    (
+        "coordinator alone",
+        lambda d: ["planetary", "--coordinator", "127.0.0.1:1", "--out", str(d / "o")],
+        "--coordinator",
+    ),  # fmt: skip
+    (
+        "process id out of range",
+        lambda d: [
+            "planetary",
+            "--coordinator",
+            "127.0.0.1:1",
+            "--processes",
+            "2",
+            "--process-id",
+            "5",
+            "--out",
+            str(d / "o"),
+        ],
+        "--process-id",
+    ),  # fmt: skip
+    (
+        "resume without samples",
+        lambda d: ["planetary", "--resume", "--samples", "0", "--out", str(d / "o")],
+        "--resume",
+    ),  # fmt: skip
+    (
+        "resume without checkpoint",
+        lambda d: ["planetary", "--resume", "--out", str(d / "o")],
+        "cannot resume",
+    ),
+    (
+        "optimize periods negative",
+        lambda d: ["optimize", "--periods", "-1", "--out", str(d / "o")],
+        "periods",
+    ),
+    ("optimize design missing", lambda d: ["optimize", "--design", str(d / "none.toml")], "none.toml"),
+    (
+        "optimize bad transform",
+        lambda d: [
+            "optimize",
+            "--design",
+            _design_file(d, ('transform = "log"', 'transform = "sqrt"')),
+            "--out",
+            str(d / "o"),
+        ],
+        "`transform`",
+    ),  # fmt: skip
+    (
+        "back-to-back window",
+        lambda d: ["back-to-back", "--stft-window", "0", "--out", str(d / "o")],
+        "--stft-window",
+    ),
+]
+
+
+def _text(folder, text):
+    path = folder / "file.txt"
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.parametrize("case", CASES, ids=[c[0] for c in CASES])
+def test_bad_option_exits_2_with_one_line_naming_it(case, tmp_path, capsys):
+    _, argv, needle = case
+    start = time.perf_counter()
+    try:
+        code = main(argv(tmp_path))
+    except SystemExit as stop:  # argparse's own refusal of an option
+        code = stop.code
+    err = capsys.readouterr().err
+    assert code == 2, err
+    last = err.strip().splitlines()[-1]
+    assert last.startswith("pgtjax") and "error" in last, err
+    assert needle in last, err
+    assert "Traceback" not in err
+    assert time.perf_counter() - start < 30.0  # refused before a study runs
+
+
+def test_unknown_subcommand(capsys):
+    with pytest.raises(SystemExit) as stop:
+        main(["bogus"])
+    assert stop.value.code == 2 and "invalid choice: 'bogus'" in capsys.readouterr().err
