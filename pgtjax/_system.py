@@ -251,6 +251,7 @@ class System(eqx.Module):
         dof_names: Sequence[str] | None = None,
         dof_units: Sequence[str] | None = None,
     ):
+        require_x64("System")
         self.mass = jnp.atleast_2d(as_float_array("mass", mass))
         if self.mass.ndim != 2 or self.mass.shape[0] != self.mass.shape[1]:
             raise ValueError(f"`mass` must be a square (n_dof, n_dof) matrix, got shape {self.mass.shape}")
