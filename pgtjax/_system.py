@@ -19,6 +19,7 @@ Units are SI (m, kg, N, s) unless a model says otherwise; a DOF may be an angle 
 from __future__ import annotations
 
 import os
+import weakref
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -581,14 +582,13 @@ def check_initial_covariance(system: System, value) -> jax.Array:
     return p0
 
 
-def check_stability(system: System, t0, horizon=None) -> None:
-    """``ValueError`` if the system with its contacts closed (their ``closed_stiffness``) is unstable at ``t0``:
-    an eigenvalue of ``[[0, I], [-M^-1 K, -M^-1 C]]`` with a growth rate above ``1e-7`` of the spectral radius
-    (rounding of defective rigid-body pairs stays below that) that amplifies the response by more than 1 %
-    over ``horizon`` (s; default: any). Negative damping, a negative-definite stiffness or a non-symmetric
-    damping that feeds energy in are caught here, before they return finite nonsense. Traced systems pass."""
-    if not _is_concrete(system.mass) or any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(system)):
-        return
+#: (id(system), t0) -> (weak reference to the system, spectral radius, rightmost eigenvalue)
+_FIRST_ORDER_SPECTRA: dict = {}
+
+
+def _first_order_spectrum(system: System, t0):
+    """Spectral radius and rightmost eigenvalue of ``[[0, I], [-M^-1 K, -M^-1 C]]`` at ``t0`` with the contacts
+    closed, or None if that matrix is not finite."""
     t = jnp.asarray(t0, jnp.float64)
     k = np.asarray(at_time(system.stiffness, t))
     c = np.asarray(at_time(system.damping, t))
@@ -599,10 +599,31 @@ def check_stability(system: System, t0, horizon=None) -> None:
     n = m.shape[0]
     a = np.block([[np.zeros((n, n)), np.eye(n)], [-np.linalg.solve(m, k), -np.linalg.solve(m, c)]])
     if not np.all(np.isfinite(a)):
-        return  # the finiteness checks name the culprit
+        return None
     lam = np.linalg.eigvals(a)
-    radius = float(np.max(np.abs(lam)))
-    worst = lam[int(np.argmax(lam.real))]
+    return float(np.max(np.abs(lam))), complex(lam[int(np.argmax(lam.real))])
+
+
+def check_stability(system: System, t0, horizon=None) -> None:
+    """``ValueError`` if the system with its contacts closed (their ``closed_stiffness``) is unstable at ``t0``:
+    an eigenvalue of ``[[0, I], [-M^-1 K, -M^-1 C]]`` with a growth rate above ``1e-7`` of the spectral radius
+    (rounding of defective rigid-body pairs stays below that) that amplifies the response by more than 1 %
+    over ``horizon`` (s; default: any). Negative damping, a negative-definite stiffness or a non-symmetric
+    damping that feeds energy in are caught here, before they return finite nonsense. Traced systems pass."""
+    if not _is_concrete(system.mass) or any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(system)):
+        return
+    key = (id(system), float(t0))
+    cached = _FIRST_ORDER_SPECTRA.get(key)
+    if cached is not None and cached[0]() is system:  # the same system solved again: no second eigen-solve
+        radius, worst = cached[1:]
+    else:
+        spectrum = _first_order_spectrum(system, t0)
+        if spectrum is None:
+            return  # not finite: the finiteness checks name the culprit
+        radius, worst = spectrum
+        if len(_FIRST_ORDER_SPECTRA) >= 64:
+            _FIRST_ORDER_SPECTRA.clear()
+        _FIRST_ORDER_SPECTRA[key] = (weakref.ref(system), radius, worst)
     growth = float(worst.real)
     if growth <= 1e-7 * radius or (horizon is not None and growth * float(horizon) <= 0.01):
         return
