@@ -11,8 +11,6 @@ from pathlib import Path
 
 import jax
 
-from pgtjax._files import write_text
-
 RESULTS = Path(__file__).parent / "results"
 
 
@@ -74,4 +72,6 @@ def write(name: str, payload: dict, machine_info: dict | None = None) -> Path:
     RESULTS.mkdir(exist_ok=True)
     path = RESULTS / f"{name}.json"
     payload = dict(machine=machine_info or machine(), date=time.strftime("%Y-%m-%d %H:%M:%S"), **payload)
+    from pgtjax._files import write_text  # here, not at the top: compare_timing imports this with old trees too
+
     return write_text(path, json.dumps(payload, indent=2))

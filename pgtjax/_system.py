@@ -582,7 +582,7 @@ def check_initial_covariance(system: System, value) -> jax.Array:
     return p0
 
 
-#: (id(system), t0) -> (weak reference to the system, spectral radius, rightmost eigenvalue)
+#: (id(system), t) -> (weak reference to the system, (spectral radius, rightmost eigenvalue) or None)
 _FIRST_ORDER_SPECTRA: dict = {}
 
 
@@ -604,40 +604,60 @@ def _first_order_spectrum(system: System, t0):
     return float(np.max(np.abs(lam))), complex(lam[int(np.argmax(lam.real))])
 
 
+_STABILITY_INSTANTS = 8  # instants of a time-varying system checked over the horizon
+
+
+def _spectrum_at(system: System, t):
+    """Cached :func:`_first_order_spectrum` (a system solved again pays no second eigen-solve)."""
+    key = (id(system), float(t))
+    cached = _FIRST_ORDER_SPECTRA.get(key)
+    if cached is not None and cached[0]() is system:
+        return cached[1]
+    spectrum = _first_order_spectrum(system, t)
+    if len(_FIRST_ORDER_SPECTRA) >= 256:
+        _FIRST_ORDER_SPECTRA.clear()
+    _FIRST_ORDER_SPECTRA[key] = (weakref.ref(system), spectrum)
+    return spectrum
+
+
 def check_stability(system: System, t0, horizon=None) -> None:
-    """``ValueError`` if the system with its contacts closed (their ``closed_stiffness``) is unstable at ``t0``:
-    an eigenvalue of ``[[0, I], [-M^-1 K, -M^-1 C]]`` with a growth rate above ``1e-7`` of the spectral radius
+    """``ValueError`` if the system with its contacts closed (their ``closed_stiffness``) is unstable: an
+    eigenvalue of ``[[0, I], [-M^-1 K, -M^-1 C]]`` with a growth rate above ``1e-7`` of the spectral radius
     (rounding of defective rigid-body pairs stays below that) that amplifies the response by more than 1 %
-    over ``horizon`` (s; default: any). Negative damping, a negative-definite stiffness or a non-symmetric
-    damping that feeds energy in are caught here, before they return finite nonsense. Traced systems pass."""
+    over ``horizon`` (s; default: any). Checked at ``t0`` and, when K, C or the contacts depend on time, at
+    8 instants spread over the horizon (frozen-time stability; the message names the first unstable instant).
+    Negative damping, a negative-definite stiffness or a non-symmetric damping that feeds energy in are caught
+    here, before they return finite nonsense. Traced systems pass."""
     if not _is_concrete(system.mass) or any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(system)):
         return
-    key = (id(system), float(t0))
-    cached = _FIRST_ORDER_SPECTRA.get(key)
-    if cached is not None and cached[0]() is system:  # the same system solved again: no second eigen-solve
-        radius, worst = cached[1:]
-    else:
-        spectrum = _first_order_spectrum(system, t0)
+    varying = [system.stiffness, system.damping]
+    if system.contacts is not None:
+        varying += [system.contacts.direction, system.contacts.inputs]
+    instants = [float(t0)]
+    if horizon is not None and any(callable(f) for f in varying):
+        instants += [
+            float(t0) + float(horizon) * j / (_STABILITY_INSTANTS - 1) for j in range(1, _STABILITY_INSTANTS)
+        ]
+    for t in instants:
+        spectrum = _spectrum_at(system, t)
         if spectrum is None:
             return  # not finite: the finiteness checks name the culprit
         radius, worst = spectrum
-        if len(_FIRST_ORDER_SPECTRA) >= 64:
-            _FIRST_ORDER_SPECTRA.clear()
-        _FIRST_ORDER_SPECTRA[key] = (weakref.ref(system), radius, worst)
-    growth = float(worst.real)
-    if growth <= 1e-7 * radius or (horizon is not None and growth * float(horizon) <= 0.01):
-        return
-    cause = (
-        "the damping feeds energy in (negative, or non-symmetric with an indefinite symmetric part): check `damping`"
-        if abs(worst.imag) > 0.0
-        else "a negative stiffness (a statically unstable mode) or negative damping: check `stiffness`, the "
-        "contacts' stiffness and `damping`"
-    )
-    raise ValueError(
-        f"the system is unstable at t = {float(t0):.6g} s (contacts closed): a mode"
-        f"{f' of {abs(worst.imag) / (2 * np.pi):.4g} Hz' if worst.imag else ''} grows like exp(s t) with "
-        f"s = {growth:.4g} 1/s (e-folding time {1.0 / growth:.4g} s); {cause}"
-    )
+        growth = float(worst.real)
+        if growth <= 1e-7 * radius or (horizon is not None and growth * float(horizon) <= 0.01):
+            continue
+        cause = (
+            "the damping feeds energy in (negative, or non-symmetric with an indefinite symmetric part): check "
+            "`damping`"
+            if abs(worst.imag) > 0.0
+            else "a negative stiffness (a statically unstable mode) or negative damping: check `stiffness`, the "
+            "contacts' stiffness and `damping`"
+        )
+        raise ValueError(
+            f"the system is unstable at t = {t:.6g} s (contacts closed): a mode"
+            f"{f' of {abs(worst.imag) / (2 * np.pi):.4g} Hz' if worst.imag else ''} grows like exp(s t) with "
+            f"s = {growth:.4g} 1/s (e-folding time {1.0 / growth:.4g} s); {cause}"
+        )
 
 
 def initial_state(system: System, initial_displacement=None, initial_velocity=None):

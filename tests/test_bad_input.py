@@ -151,6 +151,13 @@ API = [
         "unstable.*`damping`",
     ),  # fmt: skip
     ("negative-definite stiffness", lambda: sl(chain(stiffness=-K2)), "unstable.*`stiffness`"),
+    (
+        "damping negative after 2 s",
+        lambda: sl(
+            spring(damping=lambda t: jnp.where(t > 2.0, -1.0, 1.0) * jnp.eye(1)), n_steps=1000, save_every=250
+        ),
+        "unstable at t = 2.286 s.*`damping`",
+    ),  # fmt: skip
     # time grid
     ("t0 NaN, SL", lambda: sl(t0=np.nan), "`t0`"),
     ("t0 NaN, MC", lambda: mc(t0=np.nan), "`t0`"),
@@ -304,6 +311,16 @@ def test_api_input_is_refused_naming_the_parameter(case):
     _, call, pattern = case
     with pytest.raises(ValueError, match=pattern):
         call()
+
+
+def test_a_stiffness_function_that_turns_nan_is_named_with_its_time():
+    """Not a bad input that can be seen before the run (K(t) is only evaluated inside it): the solver's
+    failure names the first saved time and quantity that is not finite."""
+    system = spring(stiffness=lambda t: jnp.where(t > 0.5, jnp.nan, 1.0) * jnp.ones((1, 1)))
+    with pytest.raises(pg.SolverError, match=r"simulate: non-finite displacement of 'x' first at t = 0.52 s"):
+        sim(system, n_steps=1000, save_every=10)
+    with pytest.raises(pg.SolverError, match=r"solve_moments \(SL\): non-finite .* first at t = 0.52 s"):
+        sl(system, n_steps=1000, save_every=10)
 
 
 def test_contact_loss_probability_with_the_wrong_clearances():
