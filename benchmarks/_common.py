@@ -72,6 +72,7 @@ def write(name: str, payload: dict, machine_info: dict | None = None) -> Path:
     RESULTS.mkdir(exist_ok=True)
     path = RESULTS / f"{name}.json"
     payload = dict(machine=machine_info or machine(), date=time.strftime("%Y-%m-%d %H:%M:%S"), **payload)
-    from pgtjax._files import write_text  # here, not at the top: compare_timing imports this with old trees too
+    # imported here, not at the top: compare_timing.py imports this module with older trees too
+    from pgtjax._files import write_text
 
     return write_text(path, json.dumps(payload, indent=2))

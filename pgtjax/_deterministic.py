@@ -50,8 +50,8 @@ def simulate(
     validate_system(system, t0)
     n_steps, save_every = validate_time_grid(dt, n_steps, save_every, t0)
     check_memory("simulate", n_steps // save_every + 1, 3 * system.n_dof + 2 * system.n_contacts)
-    check_stability(system, t0, horizon=None if isinstance(dt, jax.core.Tracer) else n_steps * float(dt))
     check_contact_stiffness_over_time(system, t0, dt, n_steps)
+    check_stability(system, t0, horizon=None if isinstance(dt, jax.core.Tracer) else n_steps * float(dt))
     u0, v0 = initial_state(system, initial_displacement, initial_velocity)
     result = _simulate_jit(
         system,

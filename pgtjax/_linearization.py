@@ -634,8 +634,8 @@ def solve_moments(
     n_obs = 0 if observables is None else len(observables.names)
     per_save = 4 * system.n_dof + 6 * system.n_contacts + 2 * n_obs + len(cov_index) ** 2 + 3
     check_memory("solve_moments", n_steps // save_every + 1, per_save)
-    check_stability(system, t0, horizon=None if isinstance(dt, jax.core.Tracer) else n_steps * float(dt))
     check_contact_stiffness_over_time(system, t0, dt, n_steps)
+    check_stability(system, t0, horizon=None if isinstance(dt, jax.core.Tracer) else n_steps * float(dt))
     criterion = as_criterion(criterion)
     integrator = resolve_integrator(integrator, noise_scheme)
     if isinstance(rtol, bool) or not isinstance(rtol, numbers.Real) or not 0.0 < rtol < 1.0:

@@ -390,8 +390,8 @@ def monte_carlo(
     n_steps, save_every = validate_time_grid(dt, n_steps, save_every, t0)
     check_key(key)
     check_observables(system, observables, t0)
-    check_stability(system, t0, horizon=n_steps * float(dt))
     check_contact_stiffness_over_time(system, t0, dt, n_steps)
+    check_stability(system, t0, horizon=n_steps * float(dt))
     integrator = resolve_integrator(integrator, noise_scheme)
     check_options(n_samples, chunk_size, checkpoint, resume, distributed=distributed)
     if propagation not in PROPAGATIONS:
