@@ -12,6 +12,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _chains import backlash_oscillator
 
 import pgtjax as pg
 from pgtjax import params as embedded
@@ -24,20 +25,7 @@ GRID = dict(dt=0.004, n_steps=40, save_every=10)
 K2 = np.array([[2.0, -1.0], [-1.0, 2.0]])
 
 
-def spring(**kw):
-    """The README's oscillator: a mass on a backlash spring under a static load and white noise."""
-    fields = dict(
-        mass=[[1.0]],
-        stiffness=[[0.0]],
-        damping=[[1.0]],
-        load=[0.6],
-        noise_input=[[1.0]],
-        spectral_density=3.2e-3,
-        contacts=pg.Contacts(direction=[[1.0]], stiffness=[100.0], clearance=[0.01], names=["spring"]),
-        dof_names=["x"],
-    )
-    fields.update(kw)
-    return pg.System(**fields)
+spring = backlash_oscillator
 
 
 def chain(**kw):
@@ -333,6 +321,7 @@ def test_contact_loss_probability_with_the_wrong_clearances():
         result.contact_loss_probability([0.01, 0.01, 0.01])
 
 
+@pytest.mark.filterwarnings("ignore:Explicitly requested dtype float64")  # jax's own, while x64 is off
 def test_a_switched_off_x64_is_said_plainly():
     jax.config.update("jax_enable_x64", False)
     try:

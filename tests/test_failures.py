@@ -4,6 +4,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _chains import backlash_oscillator
 
 import pgtjax as pg
 
@@ -62,15 +63,7 @@ def test_nonfinite_moments_under_jit_raise_too():
 
 
 def test_unconverged_fixed_point_names_the_time():
-    system = pg.System(
-        mass=[[1.0]],
-        stiffness=[[0.0]],
-        damping=[[1.0]],
-        load=[0.6],
-        noise_input=[[1.0]],
-        spectral_density=3.2e-3,
-        contacts=pg.Contacts(direction=[[1.0]], stiffness=[100.0], clearance=[0.01]),
-    )
+    system = backlash_oscillator()
     with pytest.raises(pg.SolverError, match=r"did not converge.* t = 0\.1 s.*max_iter"):
         pg.solve_moments(system, dt=0.01, n_steps=20, save_every=10, max_iter=1, rtol=1e-15)
 
