@@ -150,8 +150,9 @@ def _text(folder, text):
 
 
 @pytest.mark.parametrize("case", CASES, ids=[c[0] for c in CASES])
-def test_bad_option_exits_2_with_one_line_naming_it(case, tmp_path, capsys):
+def test_bad_option_exits_2_with_one_line_naming_it(case, tmp_path, capsys, monkeypatch):
     _, argv, needle = case
+    monkeypatch.chdir(tmp_path)  # a default --out is created in the working folder
     start = time.perf_counter()
     try:
         code = main(argv(tmp_path))

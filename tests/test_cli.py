@@ -31,3 +31,17 @@ def test_out_inside_a_read_only_folder_is_refused(tmp_path, capsys):
         assert "--out" in capsys.readouterr().err
     finally:
         locked.chmod(0o700)
+
+
+def test_main_job_on_its_default_output_folder_in_a_fresh_folder(tmp_path, monkeypatch, capsys):
+    """`pgtjax run` as the README gives it, without --out, where no pgtjax-output exists yet (it failed when the
+    Monte Carlo started: its checkpoint folder did not exist); tiny sizes."""
+    import json
+
+    monkeypatch.chdir(tmp_path)
+    argv = ["run", "--samples", "20", "--periods", "0.01", "--no-sweeps", "--no-sensitivities", "--quiet"]
+    assert main(argv) == 0, capsys.readouterr().err
+    manifest = json.loads((tmp_path / "pgtjax-output" / "planetary" / "manifest.json").read_text())
+    assert manifest["status"] == "complete"
+    names = {f["name"] for f in manifest["files"]}
+    assert {"summary.json", "planetary_mc.npz", "planetary_sl_force.npz"} <= names

@@ -37,7 +37,7 @@ def _run(args) -> int:
     from ..studies import back_to_back as study
 
     params = _load(args)
-    out = args.out or Path("pgtjax-output") / "back_to_back"
+    out = args.out
     t_end = study.run_up_end(params) if args.t_end is None else args.t_end
     print(study.format_header(params, dt=args.dt, t_end=t_end), flush=True)
     start = time.perf_counter()
@@ -157,7 +157,10 @@ def register(subparsers) -> None:
         help="STFT window length in s (default %(default)s)",
     )
     run.add_argument(
-        "--out", type=Path, default=None, help="output folder (default: pgtjax-output/back_to_back)"
+        "--out",
+        type=Path,
+        default=Path("pgtjax-output") / "back_to_back",
+        help="output folder (default: pgtjax-output/back_to_back)",
     )
     run.add_argument("--quiet", action="store_true", help="no progress lines")
     run.set_defaults(func=_run)

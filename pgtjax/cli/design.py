@@ -32,7 +32,7 @@ def _run_optimize(args) -> int:
         spec.optimizer["max_iter"] = args.max_iter
     if args.periods is not None:
         spec.periods = args.periods
-    out = args.out or Path("pgtjax-output") / "design"
+    out = args.out
     _check_writable(out)  # created now: the history is written from the first iteration on
     history = out / "history.json"
     if args.resume and not history.exists():
@@ -88,7 +88,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="design specification (TOML: variables, objective, costs, optimizer, horizon, "
         "verification, pareto); default: the embedded bolt study (pgtjax/params/design.toml)",
     )
-    opt.add_argument("--out", type=Path, default=None, help="output folder (default: pgtjax-output/design)")
+    opt.add_argument(
+        "--out",
+        type=Path,
+        default=Path("pgtjax-output") / "design",
+        help="output folder (default: pgtjax-output/design)",
+    )
     opt.add_argument("--resume", action="store_true", help="continue from the history in --out")
     opt.add_argument("--no-pareto", action="store_true", help="skip the Pareto front")
     opt.add_argument("--samples", type=positive_int, default=None, help="override the Monte Carlo samples")

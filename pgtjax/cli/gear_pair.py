@@ -62,7 +62,12 @@ def _add_gear_pair_options(p: argparse.ArgumentParser, quick: bool) -> None:
         default=10_000,
         help="MC samples per compiled batch; bounds memory (default %(default)s)",
     )
-    p.add_argument("--out", type=Path, default=None, help="output folder (default: pgtjax-output/gear_pair)")
+    p.add_argument(
+        "--out",
+        type=Path,
+        default=Path("pgtjax-output") / "gear_pair",
+        help="output folder (default: pgtjax-output/gear_pair)",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
@@ -72,7 +77,7 @@ def _run_gear_pair(args) -> int:
     from ..studies import gear_pair as study
 
     params, regimes = study.load_inputs(args.params)
-    out = args.out or Path("pgtjax-output") / "gear_pair"
+    out = args.out
     print(
         study.format_header(
             regimes, criteria=args.criteria, n_samples=args.samples, dt=args.dt, t_end=args.t_end

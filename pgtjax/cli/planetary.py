@@ -59,7 +59,12 @@ def _add_planetary_options(p: argparse.ArgumentParser, quick: bool) -> None:
     p.add_argument("--no-sensitivities", action="store_true", help="skip the autodiff sensitivities")
     p.add_argument("--seed", type=seed, default=0, help="PRNG seed of the Monte Carlo")
     p.add_argument("--chunk-size", type=nonneg_int, default=5000, help="MC samples per compiled batch")
-    p.add_argument("--out", type=Path, default=None, help="output folder (default: pgtjax-output/planetary)")
+    p.add_argument(
+        "--out",
+        type=Path,
+        default=Path("pgtjax-output") / "planetary",
+        help="output folder (default: pgtjax-output/planetary)",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     add_scale_out_options(p)
 
@@ -79,7 +84,7 @@ def _run_planetary(args) -> int:
         raise ValueError("`--resume` continues a Monte Carlo; it needs `--samples` >= 2")
     process = start_processes(args)  # before any JAX computation
     params = _params(args)
-    out = args.out or Path("pgtjax-output") / "planetary"
+    out = args.out
     study_kw = dict(
         n_samples=args.samples,
         dt=args.dt,

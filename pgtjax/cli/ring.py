@@ -97,7 +97,7 @@ def _run_moving_load(args) -> int:
         sweep_max=args.sweep_max,
         full=args.full,
     )
-    out = args.out or Path("pgtjax-output") / "ring_moving_load"
+    out = args.out
     print(study.format_header(p, dt=args.dt, **settings), flush=True)
     start = time.perf_counter()
     result = study.run_study(
@@ -267,7 +267,10 @@ def register(subparsers) -> None:
         help="thesis size: one revolution, 190 sweep speeds, >= 1000 MC samples",
     )
     ml.add_argument(
-        "--out", type=Path, default=None, help="output folder (default: pgtjax-output/ring_moving_load)"
+        "--out",
+        type=Path,
+        default=Path("pgtjax-output") / "ring_moving_load",
+        help="output folder (default: pgtjax-output/ring_moving_load)",
     )
     ml.add_argument("--quiet", action="store_true", help="no progress messages")
     ml.set_defaults(func=_run_moving_load)
