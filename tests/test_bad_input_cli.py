@@ -59,7 +59,11 @@ CASES = [
     ("samples one", lambda d: ["gear-pair", "--samples", "1", "--out", str(d / "o")], "`n_samples`"),
     ("chunk size zero", lambda d: ["planetary", "--chunk-size", "0", "--out", str(d / "o")], "`chunk_size`"),
     ("planetary elements zero", lambda d: ["planetary-modal", "--elements", "0"], "--elements"),
-    ("planetary elements not a multiple", lambda d: ["planetary-modal", "--elements", "5"], "`n_supports`"),
+    (
+        "planetary elements not a multiple",
+        lambda d: ["planetary-modal", "--elements", "5"],
+        "`ring.n_supports`",
+    ),
     ("ring elements zero", lambda d: ["ring-modal", "--n-elements", "0"], "--n-elements"),
     ("ring free vibration elements", lambda d: ["ring-free-vibration", "--n-elements", "2"], "--n-elements"),
     ("ring support case", lambda d: ["ring-modal", "--support", "4"], "--support"),
@@ -171,3 +175,24 @@ def test_unknown_subcommand(capsys):
     with pytest.raises(SystemExit) as stop:
         main(["bogus"])
     assert stop.value.code == 2 and "invalid choice: 'bogus'" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "argv, needle",
+    [
+        (["planetary-modal", "--set", "ring.rim_thicknes=0.1"], "did you mean `ring.rim_thickness`"),
+        (["gear-pair-modal", "--set", "gears.teeth_1=21.5"], "`gears.teeth_1` = 21.5"),
+        (["gear-pair-modal", "--set", "gearsteeth_1"], "--set"),
+        (["ring-modal", "--set", "supports.n_bolts=5"], "`supports.n_bolts`"),
+        (["back-to-back-modal", "--set", "gears.n_planets=4"], "`gears.n_planets`"),
+        (["planetary-modal", "--set", "ring.teeth.x=1"], "`ring.teeth` is a value"),
+    ],
+    ids=["misspelt", "teeth", "no value", "bolts", "bench planets", "through a value"],
+)
+def test_set_overrides_are_checked_like_the_file(argv, needle, capsys):
+    try:
+        code = main(argv)
+    except SystemExit as stop:
+        code = stop.code
+    err = capsys.readouterr().err
+    assert code == 2 and needle in err.strip().splitlines()[-1], err

@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 
 from .._files import publish
+from ._params import add_parameter_options, parameters, write_parameters
 from ._types import nonneg_float as _nonnegative_float
 from ._types import positive_float as _positive_float
 from ._types import positive_int as _positive_int
@@ -22,7 +23,7 @@ def _load(args):
     from ..studies import back_to_back as study
 
     return study.load_params(
-        args.params,
+        parameters(args, "back_to_back"),
         speed_start_rpm=getattr(args, "speed_start_rpm", None),
         speed_end_rpm=getattr(args, "speed_end_rpm", None),
         ramp_start=getattr(args, "ramp_start", None),
@@ -51,7 +52,14 @@ def _run(args) -> int:
         progress=not args.quiet,
     )
     print("  writing results and figures ...", flush=True)
-    written = publish(out, lambda folder: study.write_outputs(result, folder))
+    data = parameters(args, "back_to_back")
+    written = publish(
+        out,
+        lambda folder: (
+            study.write_outputs(result, folder)
+            + [write_parameters(folder, data, "back_to_back", args.command)]
+        ),
+    )
     print(study.format_hertz(result.hertz))
     print(study.format_ridges(result.ridges))
     print(
@@ -69,13 +77,7 @@ def _modal(args) -> int:
 
 
 def _common(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "--params",
-        type=Path,
-        default=None,
-        help="bench parameter file (TOML, layout of pgtjax/params/back_to_back.toml); default: the "
-        "embedded paper Tables 1 and 3 with the documented assumptions",
-    )
+    add_parameter_options(p, "back_to_back")
     p.add_argument(
         "--torque",
         type=_nonnegative_float,

@@ -8,6 +8,7 @@ import time
 from pathlib import Path
 
 from .._files import publish
+from ._params import add_parameter_options, parameters
 from ._types import positive_int
 
 
@@ -19,7 +20,7 @@ def _run_optimize(args) -> int:
     from . import _check_writable
 
     params_file = args.params if args.params is not None else embedded.path("planetary.toml")
-    data = embedded.read_toml(params_file)
+    data = parameters(args, "planetary")
     params = pm.load_params(data)
     spec = study.load_spec(args.design)
     if args.samples is not None:
@@ -75,12 +76,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="design optimization (optax) of the planetary train: by default the stiffness of each of the "
         "6 ring bolts against the ring's deformation at the meshes, verified by Monte Carlo",
     )
-    opt.add_argument(
-        "--params",
-        type=Path,
-        default=None,
-        help="planetary parameter file (TOML); default: the embedded thesis set",
-    )
+    add_parameter_options(opt, "planetary")
     opt.add_argument(
         "--design",
         type=Path,

@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 
 from .._files import publish
+from ._params import add_parameter_options, parameters, write_parameters
 from ._types import (
     criteria,
     csv_nonneg_floats,
@@ -23,13 +24,7 @@ from ._types import (
 
 
 def _add_gear_pair_options(p: argparse.ArgumentParser, quick: bool) -> None:
-    p.add_argument(
-        "--params",
-        type=Path,
-        default=None,
-        help="gear-pair parameter file (TOML, layout of pgtjax/params/gear_pair.toml); "
-        "default: the embedded thesis Table 4.1 set",
-    )
+    add_parameter_options(p, "gear_pair")
     p.add_argument(
         "--samples",
         type=nonneg_int,
@@ -76,7 +71,8 @@ def _run_gear_pair(args) -> int:
 
     from ..studies import gear_pair as study
 
-    params, regimes = study.load_inputs(args.params)
+    data = parameters(args, "gear_pair")
+    params, regimes = study.load_inputs(data)
     out = args.out
     print(
         study.format_header(
@@ -97,7 +93,12 @@ def _run_gear_pair(args) -> int:
         chunk_size=args.chunk_size,
         progress=not args.quiet,
     )
-    written = publish(out, lambda folder: study.write_outputs(result, folder))
+    written = publish(
+        out,
+        lambda folder: (
+            study.write_outputs(result, folder) + [write_parameters(folder, data, "gear_pair", args.command)]
+        ),
+    )
     if args.samples:
         print(study.format_error_table(study.error_table(result)))
     print(f"done in {time.perf_counter() - start:.1f} s; {len(written)} files written to {out.resolve()}")
@@ -107,7 +108,9 @@ def _run_gear_pair(args) -> int:
 def _run_step_study(args) -> int:
     from ..studies import gear_pair as study
 
-    rows = study.step_convergence(study.load_params(args.params), dts=args.dts, t_end=args.t_end)
+    rows = study.step_convergence(
+        study.load_params(parameters(args, "gear_pair")), dts=args.dts, t_end=args.t_end
+    )
     print(json.dumps(rows, indent=2) if args.json else study.format_step_table(rows))
     return 0
 
@@ -115,7 +118,7 @@ def _run_step_study(args) -> int:
 def _run_modal(args) -> int:
     from ..studies import gear_pair as study
 
-    rows = study.modal_table(study.load_params(args.params))
+    rows = study.modal_table(study.load_params(parameters(args, "gear_pair")))
     print(json.dumps(rows, indent=2) if args.json else study.format_modal_table(rows))
     return 0
 
@@ -131,7 +134,7 @@ def register(subparsers) -> None:
     step = subparsers.add_parser(
         "gear-pair-step", help="time-step convergence study of the gear-pair SL moments"
     )
-    step.add_argument("--params", type=Path, default=None, help="gear-pair parameter file (TOML)")
+    add_parameter_options(step, "gear_pair")
     step.add_argument(
         "--dts",
         type=csv_positive_floats,
@@ -146,6 +149,6 @@ def register(subparsers) -> None:
         "gear-pair-modal",
         help="natural frequencies and mode shapes of the gear pair (mesh closed at its mean stiffness)",
     )
-    modal.add_argument("--params", type=Path, default=None, help="gear-pair parameter file (TOML)")
+    add_parameter_options(modal, "gear_pair")
     modal.add_argument("--json", action="store_true", help="print JSON instead of a table")
     modal.set_defaults(func=_run_modal)

@@ -11,18 +11,13 @@ import time
 from pathlib import Path
 
 from .._files import publish
+from ._params import add_parameter_options, parameters, write_parameters
 from ._scale import add_scale_out_options, checkpoint_path, start_processes
 from ._types import criteria, element_count, nonneg_int, positive_float, positive_int, seed
 
 
 def _add_planetary_options(p: argparse.ArgumentParser, quick: bool) -> None:
-    p.add_argument(
-        "--params",
-        type=Path,
-        default=None,
-        help="planetary parameter file (TOML, layout of pgtjax/params/planetary.toml); "
-        "default: the embedded thesis Tables 3.1-3.2 set",
-    )
+    add_parameter_options(p, "planetary")
     p.add_argument(
         "--samples",
         type=nonneg_int,
@@ -70,9 +65,12 @@ def _add_planetary_options(p: argparse.ArgumentParser, quick: bool) -> None:
 
 
 def _params(args):
-    from ..studies import planetary as study
+    """``(PlanetaryParams, the checked parameter dict)``: ``--params``, ``--set``, ``--ring-model`` and
+    ``--elements``."""
+    from ..models import planetary as pm
 
-    return study.load_params(args.params, ring_model=args.ring_model, n_elements=args.elements)
+    data = parameters(args, "planetary", {"ring_model": args.ring_model, "ring.n_elements": args.elements})
+    return pm.load_params(data), data
 
 
 def _run_planetary(args) -> int:
@@ -83,7 +81,7 @@ def _run_planetary(args) -> int:
     if args.resume and not args.samples:
         raise ValueError("`--resume` continues a Monte Carlo; it needs `--samples` >= 2")
     process = start_processes(args)  # before any JAX computation
-    params = _params(args)
+    params, data = _params(args)
     out = args.out
     study_kw = dict(
         n_samples=args.samples,
@@ -126,7 +124,9 @@ def _run_planetary(args) -> int:
     written = publish(
         out,
         lambda folder: (
-            study.write_outputs(result, folder, sweeps=sweeps, modal=modal, sens=sens) + checkpoint
+            study.write_outputs(result, folder, sweeps=sweeps, modal=modal, sens=sens)
+            + checkpoint
+            + [write_parameters(folder, data, "planetary", args.command)]
         ),
     )
     if result.mc is not None:
@@ -140,7 +140,7 @@ def _run_planetary(args) -> int:
 def _run_planetary_modal(args) -> int:
     from ..studies import planetary as study
 
-    rows = study.modal_table(_params(args))
+    rows = study.modal_table(_params(args)[0])
     print(json.dumps(rows, indent=2) if args.json else study.format_modal_table(rows))
     return 0
 
@@ -174,7 +174,7 @@ def register(subparsers) -> None:
     pmodal = subparsers.add_parser(
         "planetary-modal", help="natural frequencies and mode types of the planetary model"
     )
-    pmodal.add_argument("--params", type=Path, default=None, help="planetary parameter file (TOML)")
+    add_parameter_options(pmodal, "planetary")
     pmodal.add_argument(
         "--ring-model", choices=("elastic", "rigid"), default=None, help="override the ring model"
     )

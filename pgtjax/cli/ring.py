@@ -17,6 +17,7 @@ import time
 from pathlib import Path
 
 from .._files import publish
+from ._params import add_parameter_options, parameters, write_parameters
 from ._types import csv_floats as _csv_floats
 from ._types import csv_ints as _csv_ints
 from ._types import element_count as _element_count
@@ -41,7 +42,11 @@ def _clear_errors(func):
 def _load(args):
     from ..studies import ring_moving_load as study
 
-    return study.load_params(args.params, n_elements=args.n_elements, support=args.support)
+    return study.load_params(_data(args), support=args.support)
+
+
+def _data(args) -> dict:
+    return parameters(args, "ring_ch6", {"ring.n_elements": args.n_elements})
 
 
 # --------------------------------------------------------------------------------------------- ring-modal
@@ -110,7 +115,13 @@ def _run_moving_load(args) -> int:
         support_cases=args.supports,
         progress=not args.quiet,
     )
-    written = publish(out, lambda folder: study.write_outputs(result, folder))
+    written = publish(
+        out,
+        lambda folder: (
+            study.write_outputs(result, folder)
+            + [write_parameters(folder, _data(args), "ring_ch6", args.command)]
+        ),
+    )
     print(study.format_summary(result))
     print(
         f"done in {time.perf_counter() - start:.1f} s; {len(written)} files written to {Path(out).resolve()}"
@@ -122,13 +133,7 @@ def _run_moving_load(args) -> int:
 
 
 def _ring_file_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "--params",
-        type=Path,
-        default=None,
-        help="ring/moving-load parameter file (TOML, layout of pgtjax/params/ring_ch6.toml); "
-        "default: the embedded thesis ch. 6 ring",
-    )
+    add_parameter_options(p, "ring_ch6")
     p.add_argument(
         "--n-elements",
         type=_element_count,

@@ -1,9 +1,12 @@
 """Embedded parameter files (TOML) of the documents' models."""
 
+import copy
 import json
 import tomllib
+from collections.abc import Mapping
 from importlib import resources
 from pathlib import Path
+from typing import Any
 
 
 def path(name: str) -> Path:
@@ -34,12 +37,13 @@ EMBEDDED = {
 }
 
 
-def read_params(source, kind: str) -> dict:
+def read_params(source, kind: str, overrides: Mapping[str, Any] | None = None) -> dict:
     """A parameter set checked against its schema (:mod:`pgtjax.params._schema`): ``source`` is a TOML file
     (str or Path), the dict of one, or None (the embedded file of ``kind``: ``"planetary"``, ``"gear_pair"``,
-    ``"ring_ch6"``, ``"back_to_back"``). Returns the checked dict, optional entries' defaults filled in. An
-    unknown key, a missing one, a wrong type, a value out of range or an inconsistent combination is a
-    ``ValueError`` naming the file and every offending ``table.key``."""
+    ``"ring_ch6"``, ``"back_to_back"``); ``overrides`` maps dotted names to new values
+    (``{"ring.rim_thickness": 0.1}``), applied before the check. Returns the checked dict, optional entries'
+    defaults filled in. An unknown key, a missing one, a wrong type, a value out of range or an inconsistent
+    combination is a ``ValueError`` naming the file and every offending ``table.key``."""
     from .._config import require_x64
     from ._schema import validate
 
@@ -49,13 +53,50 @@ def read_params(source, kind: str) -> dict:
     if source is None:
         source = path(EMBEDDED[kind])
     if isinstance(source, str | Path):
-        return validate(kind, read_toml(source), where=f"parameter file `{source}`")
-    if isinstance(source, dict):
-        return validate(kind, source)
-    raise ValueError(
-        f"parameters must be a TOML file path, a dict of its tables or None (the embedded {EMBEDDED[kind]}), "
-        f"got {type(source).__name__}"
-    )
+        data, where = read_toml(source), f"parameter file `{source}`"
+    elif isinstance(source, dict):
+        data, where = source, "parameters"
+    else:
+        raise ValueError(
+            f"parameters must be a TOML file path, a dict of its tables or None (the embedded {EMBEDDED[kind]}), "
+            f"got {type(source).__name__}"
+        )
+    if overrides:
+        data = with_overrides(data, overrides)
+        where += " with " + ", ".join(f"{k} = {_toml_value(v)}" for k, v in overrides.items())
+    return validate(kind, data, where=where)
+
+
+def with_overrides(data: dict, overrides: Mapping[str, Any]) -> dict:
+    """A copy of the parameter dict ``data`` with ``{"table.key": value}`` set (a missing table is created;
+    whether the key exists is for the schema to say, with the nearest known key)."""
+    data = copy.deepcopy(data)
+    for name, value in overrides.items():
+        parts = name.split(".") if isinstance(name, str) else []
+        if not parts or not all(p.strip() for p in parts):
+            raise ValueError(
+                f"a parameter override needs a dotted name such as ring.rim_thickness, got {name!r}"
+            )
+        table = data
+        for i, part in enumerate(parts[:-1]):
+            table = table.setdefault(part, {})
+            if not isinstance(table, dict):
+                raise ValueError(f"override `{name}`: `{'.'.join(parts[: i + 1])}` is a value, not a table")
+        table[parts[-1]] = value
+    return data
+
+
+def parse_assignment(text: str) -> tuple[str, Any]:
+    """``"ring.rim_thickness=0.1"`` -> ``("ring.rim_thickness", 0.1)``: the value is read as TOML (``0.1``,
+    ``"rigid"``, ``[1e9, 2e9]``, ``true``), or kept as a string where it is not TOML (``rigid``)."""
+    name, sep, value = text.partition("=")
+    if not sep or not name.strip() or not value.strip():
+        raise ValueError(f"expected TABLE.KEY=VALUE, e.g. ring.rim_thickness=0.1, got {text!r}")
+    try:
+        parsed = tomllib.loads(f"v = {value.strip()}")["v"]
+    except tomllib.TOMLDecodeError:
+        parsed = value.strip()
+    return name.strip(), parsed
 
 
 def _toml_value(value) -> str:

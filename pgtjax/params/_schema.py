@@ -675,8 +675,11 @@ def reference_document() -> str:
         "a test checks that this file is current). Every parameter file is checked against its schema before a",
         "model is built: an unknown key, a missing one, a value of the wrong type (`21.7` teeth), out of range or",
         "inconsistent with another is a `ValueError` naming `table.key`. Copy an embedded file",
-        "(`pgtjax/params/*.toml`) and change what you need; the CLI's `--params FILE` reads it. 'Table 3.2' and",
-        "'Sec. 6.4' refer to the thesis, 'paper' to the bench paper; ASSUMED marks our documented choices.",
+        "(`pgtjax/params/*.toml`) and change what you need; the CLI's `--params FILE` reads it, and",
+        "`--set TABLE.KEY=VALUE` changes one entry (in Python: `pgtjax.params.read_params(None, \"planetary\",",
+        "{\"ring.rim_thickness\": 0.1})`, then the model's `load_params` of that dict). Every study writes the",
+        "parameters it ran with to `parameters.toml` in its output folder. 'Table 3.2' and 'Sec. 6.4' refer to",
+        "the thesis, 'paper' to the bench paper; ASSUMED marks our documented choices.",
         "",
     ]
     body = [reference(kind, read_toml(path(name))) for kind, name in EMBEDDED.items()]

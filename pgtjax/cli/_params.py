@@ -1,0 +1,63 @@
+"""The parameter options of every study command: ``--params FILE`` and ``--set TABLE.KEY=VALUE``, read into
+one checked parameter dict, and the ``parameters.toml`` a run writes beside its results."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from .. import __version__
+from .. import params as _params
+from .._files import write_text
+
+_HELP_FILE = {
+    "planetary": "planetary parameter file (TOML, layout of pgtjax/params/planetary.toml); default: the embedded "
+    "thesis ch. 3 set",
+    "gear_pair": "gear-pair parameter file (TOML, layout of pgtjax/params/gear_pair.toml); default: the embedded "
+    "thesis Table 4.1 set",
+    "ring_ch6": "ring/moving-load parameter file (TOML, layout of pgtjax/params/ring_ch6.toml); default: the "
+    "embedded thesis ch. 6 ring",
+    "back_to_back": "bench parameter file (TOML, layout of pgtjax/params/back_to_back.toml); default: the "
+    "embedded bench data",
+}
+
+
+def _assignment(text: str):
+    try:
+        return _params.parse_assignment(text)
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
+
+
+def add_parameter_options(p: argparse.ArgumentParser, kind: str) -> None:
+    """``--params`` and ``--set`` for a command on the parameter files of schema ``kind``."""
+    p.add_argument("--params", type=Path, default=None, help=_HELP_FILE[kind])
+    p.add_argument(
+        "--set",
+        dest="sets",
+        action="append",
+        type=_assignment,
+        default=[],
+        metavar="TABLE.KEY=VALUE",
+        help="override one entry of the parameter file (repeatable), e.g. --set ring.rim_thickness=0.1; VALUE is "
+        "read as TOML (0.1, [1e9, 2e9], true) or else as a string; docs/parameters.md lists every key",
+    )
+
+
+def parameters(args, kind: str, extra: dict | None = None) -> dict:
+    """The checked parameter dict of ``--params`` (default: the embedded file) with ``--set`` and the
+    command's own model options (``extra``: dotted name -> value) applied."""
+    overrides = dict(args.sets)
+    overrides.update({k: v for k, v in (extra or {}).items() if v is not None})
+    return _params.read_params(args.params, kind, overrides)
+
+
+def write_parameters(folder, data: dict, kind: str, command: str) -> Path:
+    """``parameters.toml``: every entry of the run's parameters (defaults filled in, overrides applied), so that
+    ``pgtjax <command> --params parameters.toml`` with the same other options reproduces the run."""
+    header = (
+        f"Parameters of this run (pgtjax {__version__}, layout of pgtjax/params/{_params.EMBEDDED[kind]}), with "
+        f"every --set and model option applied:\n`pgtjax {command} --params parameters.toml` and the run's other "
+        "options (manifest.json has its command line) reproduce it. Units and sources: docs/parameters.md."
+    )
+    return write_text(Path(folder) / "parameters.toml", _params.dumps_toml(data, header))
