@@ -79,6 +79,18 @@ def _previous_files(out: Path) -> list[Path]:
     return [out / f["name"] for f in listed if isinstance(f, dict) and not f.get("written_during_the_run")]
 
 
+def _remove_abandoned_staging(out: Path) -> None:
+    """Remove the staging folders of runs that were killed (their process no longer exists)."""
+    for folder in out.glob(".partial-*"):
+        try:
+            pid = int(folder.name.rsplit("-", 1)[1])
+            os.kill(pid, 0)  # raises if there is no such process
+        except ProcessLookupError:
+            shutil.rmtree(folder, ignore_errors=True)
+        except (ValueError, IndexError, PermissionError, OSError):
+            continue
+
+
 def publish(out, write: Callable[[Path], list[Path]], *, command=None) -> list[Path]:
     """Write a run's outputs into the folder ``out`` so that no interrupted or failed run leaves a set that
     looks complete. ``write(folder)`` writes the files into a hidden staging folder inside ``out`` and returns
@@ -86,18 +98,26 @@ def publish(out, write: Callable[[Path], list[Path]], *, command=None) -> list[P
     but not moved). Then ``manifest.json`` is marked incomplete, the files of the previous run (those its
     manifest lists) are moved to ``out/previous-run/``, the new files are moved in, and ``manifest.json``
     (status, command line, version, and every file with its size and SHA-256) is written last. Returns the
-    final paths."""
+    final paths. A failure before the move leaves ``out`` as it was; one during the move keeps the staging
+    folder and says where everything is."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    _remove_abandoned_staging(out)
     staging = out / f".partial-{os.getpid()}"
     shutil.rmtree(staging, ignore_errors=True)
     staging.mkdir()
     _state["staging"] = staging
+    moving = False
     try:
         written = [Path(p) for p in write(staging)]
+        missing = [str(p) for p in written if not p.is_file()]
+        if missing:
+            raise RuntimeError(f"publish: the run reported files it did not write: {missing}")
         staged = [p for p in written if staging.resolve() in p.resolve().parents]
         in_place = [p for p in written if p not in staged]
         old = [p for p in _previous_files(out) if p.is_file()]  # read before it is marked incomplete
+        old = [p for p in old if out.resolve() in p.resolve().parents]  # never move anything outside out
+        moving = True
         _state["publishing"] = out
         write_json(
             out / MANIFEST, {"status": "incomplete: a new run is replacing these outputs", "files": []}
@@ -116,18 +136,37 @@ def publish(out, write: Callable[[Path], list[Path]], *, command=None) -> list[P
             os.replace(path, target)
             final.append(target)
         write_json(out / MANIFEST, _manifest(out, final, in_place, "complete", command))
+        moving = False
         return final + in_place
+    except Exception as err:
+        if moving:  # keep what is not moved yet, and say where everything is
+            raise OSError(
+                f"writing the outputs into {str(out)!r} failed midway ({type(err).__name__}: {err}); its "
+                f"manifest.json marks them incomplete, the previous run's files are in {str(out / PREVIOUS)!r} and "
+                f"the new files not yet moved in {str(staging)!r}"
+            ) from err
+        raise
     finally:
-        shutil.rmtree(staging, ignore_errors=True)
+        if not moving:
+            shutil.rmtree(staging, ignore_errors=True)
         _state["staging"] = _state["publishing"] = None
 
 
-def interrupted_message() -> str:
-    """What an interrupt leaves behind, in one line (for the CLI's Ctrl-C handler, which also removes the
-    staging folder)."""
+def interrupted_message(resumable: bool = False) -> str:
+    """What an interrupt leaves behind, in one line (for the CLI's Ctrl-C handler; the staging folder of a
+    run that had not started moving its files is removed). ``resumable``: the command keeps a checkpoint or
+    history written during the run."""
     staging, publishing = _state["staging"], _state["publishing"]
+    if publishing is not None:
+        return (
+            f"interrupted while replacing the outputs in {str(publishing)!r}: its manifest.json marks them "
+            f"incomplete; the previous run's files are in {PREVIOUS}/, the new ones not yet moved in {staging.name}/"
+        )
     if staging is not None:
         shutil.rmtree(staging, ignore_errors=True)
-    if publishing is not None:
-        return f"interrupted while replacing the outputs in {str(publishing)!r}: its manifest.json marks them incomplete"
+    if resumable:
+        return (
+            "interrupted: no results written (earlier results unchanged); the checkpoint written so far is kept: "
+            "the same command with --resume continues from it"
+        )
     return "interrupted: no output files written (earlier outputs unchanged)"

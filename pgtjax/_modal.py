@@ -38,7 +38,8 @@ def modal_analysis(system: System, t: float = 0.0, *, include_contacts: bool = T
         g = system.contact_direction(t)
         k = k + (g * system.contact_stiffness(t)[None, :]) @ g.T
     modes = modes_of(system.mass, k, system.dof_names)
-    if not isinstance(k, jax.core.Tracer):  # the frequencies' safe_sqrt would show a negative omega^2 as 0 Hz
+    concrete = not any(isinstance(x, jax.core.Tracer) for x in (k, system.mass))
+    if concrete:  # the frequencies' safe_sqrt would show a negative omega^2 as 0 Hz
         values = _eigenvalues(np.asarray(system.mass), np.asarray(k))
         scale = float(np.max(np.abs(values))) if values.size else 0.0
         if values.size and values.min() < -1e-9 * scale:
@@ -79,10 +80,13 @@ def symmetric_eigen(mass, stiffness) -> SymmetricEigen:
         )
     if not isinstance(mass, jax.core.Tracer):
         m = np.asarray(mass)
-        if not (
-            np.allclose(m, m.T, rtol=1e-10, atol=0.0) and np.linalg.eigvalsh(0.5 * (m + m.T)).min() > 0.0
-        ):
-            raise ValueError("symmetric_eigen: `mass` must be symmetric positive definite")
+        if not np.allclose(m, m.T, rtol=1e-10, atol=1e-12 * float(np.max(np.abs(m), initial=0.0))):
+            raise ValueError("symmetric_eigen: `mass` must be symmetric")
+        smallest = float(np.linalg.eigvalsh(0.5 * (m + m.T)).min())
+        if not smallest > 0.0:
+            raise ValueError(
+                f"symmetric_eigen: `mass` must be positive definite, smallest eigenvalue {smallest!r}"
+            )
     chol = jnp.linalg.cholesky(mass)
     a = jax.scipy.linalg.solve_triangular(chol, stiffness, lower=True)
     a = jax.scipy.linalg.solve_triangular(chol, a.T, lower=True).T

@@ -76,7 +76,8 @@ def check_key(key) -> None:
     """``ValueError`` unless ``key`` is one JAX PRNG key (``jax.random.key(seed)``, or a legacy uint32 key
     ``jax.random.PRNGKey(seed)``)."""
     typed = isinstance(key, jax.Array) and jax.dtypes.issubdtype(key.dtype, jax.dtypes.prng_key)
-    legacy = isinstance(key, jax.Array) and key.dtype == jnp.uint32 and key.shape == (2,)
+    # raw uint32 key data (jax.random.PRNGKey, a NumPy copy of one): 2 words (threefry) or 4 (rbg)
+    legacy = isinstance(key, jax.Array | np.ndarray) and key.dtype == np.uint32 and key.shape in ((2,), (4,))
     if typed and key.shape != ():
         raise ValueError(
             f"`key` must be one PRNG key, got a batch of shape {key.shape}; for several independent runs "

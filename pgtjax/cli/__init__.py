@@ -61,13 +61,12 @@ def main(argv=None) -> int:
         parser.print_help()
         return 0
     out = getattr(args, "out", None)
-    resume = getattr(args, "resume", None) is not None
-    hint = "; the same command with --resume continues from the last checkpoint" if resume else ""
+    resumable = getattr(args, "resume", None) is not None
 
     def interrupted(signum, frame):
         # leave from the handler itself: a KeyboardInterrupt raised inside a callback (JAX's garbage-collection
         # hook, say) is swallowed there, and the interpreter's teardown while XLA threads run can crash
-        os.write(2, f"pgtjax: {interrupted_message()}{hint}\n".encode())
+        os.write(2, f"pgtjax: {interrupted_message(resumable)}\n".encode())
         os._exit(130)
 
     main_thread = threading.current_thread() is threading.main_thread()  # handlers live there only

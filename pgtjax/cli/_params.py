@@ -52,12 +52,15 @@ def parameters(args, kind: str, extra: dict | None = None) -> dict:
     return _params.read_params(args.params, kind, overrides)
 
 
-def write_parameters(folder, data: dict, kind: str, command: str) -> Path:
+def write_parameters(folder, data: dict, kind: str, command: str, options_outside: str = "") -> Path:
     """``parameters.toml``: every entry of the run's parameters (defaults filled in, overrides applied), so that
-    ``pgtjax <command> --params parameters.toml`` with the same other options reproduces the run."""
+    ``pgtjax <command> --params parameters.toml`` with the same other options reproduces the run.
+    ``options_outside``: the command's options that act on the model without being file entries (named in the
+    header, so that nobody takes the file for the whole story)."""
+    outside = f"\nNot in this file: {options_outside}." if options_outside else ""
     header = (
         f"Parameters of this run (pgtjax {__version__}, layout of pgtjax/params/{_params.EMBEDDED[kind]}), with "
-        f"every --set and model option applied:\n`pgtjax {command} --params parameters.toml` and the run's other "
-        "options (manifest.json has its command line) reproduce it. Units and sources: docs/parameters.md."
+        f"every --set applied:\n`pgtjax {command} --params parameters.toml` and the run's other options "
+        f"(manifest.json has its command line) reproduce it. Units and sources: docs/parameters.md.{outside}"
     )
     return write_text(Path(folder) / "parameters.toml", _params.dumps_toml(data, header))

@@ -19,11 +19,11 @@ from ._types import positive_float as _positive_float
 from ._types import positive_int as _positive_int
 
 
-def _load(args):
+def _load(args, data=None):
     from ..studies import back_to_back as study
 
     return study.load_params(
-        parameters(args, "back_to_back"),
+        parameters(args, "back_to_back") if data is None else data,
         speed_start_rpm=getattr(args, "speed_start_rpm", None),
         speed_end_rpm=getattr(args, "speed_end_rpm", None),
         ramp_start=getattr(args, "ramp_start", None),
@@ -37,7 +37,8 @@ def _load(args):
 def _run(args) -> int:
     from ..studies import back_to_back as study
 
-    params = _load(args)
+    data = parameters(args, "back_to_back")
+    params = _load(args, data)
     out = args.out
     t_end = study.run_up_end(params) if args.t_end is None else args.t_end
     print(study.format_header(params, dt=args.dt, t_end=t_end), flush=True)
@@ -52,12 +53,15 @@ def _run(args) -> int:
         progress=not args.quiet,
     )
     print("  writing results and figures ...", flush=True)
-    data = parameters(args, "back_to_back")
+    outside = (
+        "the operating-point options (--torque, --torque-end, --speed-start-rpm, --speed-end-rpm, --ramp-start, "
+        "--ramp-duration, --face-width), which act on the model directly"
+    )
     written = publish(
         out,
         lambda folder: (
             study.write_outputs(result, folder)
-            + [write_parameters(folder, data, "back_to_back", args.command)]
+            + [write_parameters(folder, data, "back_to_back", args.command, outside)]
         ),
     )
     print(study.format_hertz(result.hertz))

@@ -8,7 +8,7 @@ import time
 from pathlib import Path
 
 from .._files import publish
-from ._params import add_parameter_options, parameters
+from ._params import add_parameter_options, parameters, write_parameters
 from ._types import positive_int
 
 
@@ -17,9 +17,10 @@ def _run_optimize(args) -> int:
     from ..design._problem import check_samples
     from ..models import planetary as pm
     from ..studies import design as study
-    from . import _check_writable
 
     params_file = args.params if args.params is not None else embedded.path("planetary.toml")
+    if args.sets:
+        params_file = f"{params_file} with " + ", ".join(f"{k} = {v!r}" for k, v in args.sets)
     data = parameters(args, "planetary")
     params = pm.load_params(data)
     spec = study.load_spec(args.design)
@@ -33,8 +34,9 @@ def _run_optimize(args) -> int:
         spec.optimizer["max_iter"] = args.max_iter
     if args.periods is not None:
         spec.periods = args.periods
-    out = args.out
-    _check_writable(out)  # created now: the history is written from the first iteration on
+    out = (
+        args.out
+    )  # created and checked by main() before this: the history is written from the first iteration
     history = out / "history.json"
     if args.resume and not history.exists():
         raise ValueError(f"`--resume`: no history to resume in {str(out)!r} (run without --resume first)")
@@ -53,7 +55,14 @@ def _run_optimize(args) -> int:
     during = [
         p for p in (history, history.with_name(history.name + ".state.npz")) if p.is_file()
     ]  # resumable state
-    written = publish(out, lambda folder: study.write_outputs(result, spec, folder, data) + during)
+    written = publish(
+        out,
+        lambda folder: (
+            study.write_outputs(result, spec, folder, data)
+            + during
+            + [write_parameters(folder, data, "planetary", args.command)]
+        ),
+    )
     s = study.summary(result, spec)
     print(
         f"objective ({s['objective']['name']}, {s['objective']['unit']}): symmetric "

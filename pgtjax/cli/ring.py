@@ -45,6 +45,9 @@ def _load(args):
     return study.load_params(_data(args), support=args.support)
 
 
+_SUPPORT_OPTION = "--support, which replaces [supports] by the chosen [support_cases] entry"
+
+
 def _data(args) -> dict:
     return parameters(args, "ring_ch6", {"ring.n_elements": args.n_elements})
 
@@ -91,7 +94,8 @@ def _run_free_vibration(args) -> int:
 def _run_moving_load(args) -> int:
     from ..studies import ring_moving_load as study
 
-    p = _load(args)
+    data = _data(args)
+    p = study.load_params(data, support=args.support)
     settings = study.resolve_settings(
         p,
         revolutions=args.revolutions,
@@ -119,7 +123,11 @@ def _run_moving_load(args) -> int:
         out,
         lambda folder: (
             study.write_outputs(result, folder)
-            + [write_parameters(folder, _data(args), "ring_ch6", args.command)]
+            + [
+                write_parameters(
+                    folder, data, "ring_ch6", args.command, _SUPPORT_OPTION if args.support else ""
+                )
+            ]
         ),
     )
     print(study.format_summary(result))

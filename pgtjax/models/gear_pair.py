@@ -21,6 +21,7 @@ highest natural frequency of (M, K) (Rayleigh fit). Both may be given directly i
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 import equinox as eqx
 import jax
@@ -109,15 +110,16 @@ def validate(p: GearPairParams) -> None:
     check_range("spectral_density", p.spectral_density, lo=0.0)
     for name in ("noise_amplitude", "torque_in", "torque_out", "mesh_sin", "mesh_cos"):
         check_range(name, getattr(p, name))
-    if not isinstance(p, jax.core.Tracer) and _concrete(p.mesh_stiffness):
-        amplitude = float(np.sum(np.abs(np.asarray(p.mesh_sin))) + np.sum(np.abs(np.asarray(p.mesh_cos))))
+    if np.shape(p.mesh_sin) != np.shape(p.mesh_cos):
+        raise ValueError("`sin_coefficients` and `cos_coefficients` must have the same length")
+    if all(_concrete(x) for x in (p.mesh_stiffness, p.mesh_sin, p.mesh_cos)):
+        # harmonic j has amplitude sqrt(a_j^2 + b_j^2): their sum bounds the variation of k_h(t)
+        amplitude = float(np.sum(np.hypot(np.asarray(p.mesh_sin), np.asarray(p.mesh_cos))))
         if amplitude >= float(p.mesh_stiffness):
             raise ValueError(
                 "`mesh_sin`/`mesh_cos`: the harmonic amplitudes must sum to less than "
                 f"`mesh_stiffness` so that k_h(t) > 0; got {amplitude} >= {float(p.mesh_stiffness)}"
             )
-    if np.shape(p.mesh_sin) != np.shape(p.mesh_cos):
-        raise ValueError("`sin_coefficients` and `cos_coefficients` must have the same length")
     for name in ("teeth_1", "teeth_2"):
         teeth = getattr(p, name)
         if isinstance(teeth, bool) or not isinstance(teeth, int | np.integer) or teeth < 1:
@@ -173,7 +175,10 @@ def load_regimes(source=None) -> list[tuple[str, float, float]]:
     """The ``[regimes]`` table of a parameter file: ``[(name, T_in, T_out), ...]`` (N m)."""
     r = _params.read_params(source, "gear_pair").get("regimes")
     if r is None:
-        raise ValueError(f"parameter file `{source}` has no [regimes] table")
+        where = f"parameter file `{source}`" if isinstance(source, str | Path) else "the parameters"
+        raise ValueError(
+            f"{where} have no [regimes] table (load regimes: regimes.torque_in, torque_out, names)"
+        )
     return [(str(n), float(a), float(b)) for n, a, b in zip(r["names"], r["torque_in"], r["torque_out"])]
 
 

@@ -54,8 +54,8 @@ def read_params(source, kind: str, overrides: Mapping[str, Any] | None = None) -
         source = path(EMBEDDED[kind])
     if isinstance(source, str | Path):
         data, where = read_toml(source), f"parameter file `{source}`"
-    elif isinstance(source, dict):
-        data, where = source, "parameters"
+    elif isinstance(source, Mapping):
+        data, where = dict(source), "parameters"
     else:
         raise ValueError(
             f"parameters must be a TOML file path, a dict of its tables or None (the embedded {EMBEDDED[kind]}), "

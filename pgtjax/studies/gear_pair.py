@@ -13,6 +13,7 @@ Time step: the thesis's 0.01 s does not resolve the mesh mode (5.9 kHz with Tabl
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -95,11 +96,18 @@ def step_convergence(params=None, *, dts=(4e-5, 2e-5, 1e-5, 5e-6, 2.5e-6), t_end
 
 def _whole_steps(t_end, dt) -> int:
     """``t_end / dt`` as a whole number of steps >= 1; ``ValueError`` naming both otherwise."""
+    numbers = []
     for name, value in (("t_end", t_end), ("dt", dt)):
-        if not (isinstance(value, int | float) and np.isfinite(value) and value > 0):
+        try:
+            number = float(value) if not isinstance(value, bool | str) and np.ndim(value) == 0 else math.nan
+        except (TypeError, ValueError):
+            number = math.nan
+        if not (math.isfinite(number) and number > 0):
             raise ValueError(f"`{name}` must be a finite number of seconds > 0, got {value!r}")
+        numbers.append(number)
+    t_end, dt = numbers
     n = int(round(t_end / dt))
-    if n < 1 or abs(n * dt - t_end) > 1e-9 * t_end:
+    if n < 1 or abs(n * dt - t_end) > 1e-6 * t_end:  # float32 rounding of t_end or dt passes
         raise ValueError(
             f"`t_end` ({t_end:g} s) must be a whole number (>= 1) of time steps `dt` ({dt:g} s); "
             f"t_end / dt = {t_end / dt:.6g}"
@@ -140,16 +148,20 @@ def run_study(
     regimes = gp.load_regimes() if regimes is None else regimes
     key = jax.random.key(0) if key is None else key
     n_steps = _whole_steps(t_end, dt)
-    pdf_times = (0.75 * t_end,) if pdf_times is None else tuple(pdf_times)
-    late = [t for t in pdf_times if not 0.0 <= t <= t_end]
+    save_every = max(n_steps // n_saves, 1)
+    n_steps = save_every * (n_steps // save_every)  # a whole number of saves: the run may end before t_end
+    end = n_steps * dt
+    pdf_times = (0.75 * end,) if pdf_times is None else tuple(pdf_times)
+    late = [t for t in pdf_times if not 0.0 <= t <= end + 0.5 * save_every * dt]  # as monte_carlo reads them
     if n_samples and late:
-        raise ValueError(f"`pdf_times` must lie within the run, [0, {t_end:g}] s (`t_end`), got {late}")
+        raise ValueError(
+            f"`pdf_times` must lie within the run, [0, {end:g}] s (`t_end` rounded down to a whole number of "
+            f"saves), got {late}"
+        )
     for criterion in criteria:
         as_criterion(criterion)
     if n_samples:
         check_monte_carlo_options(n_samples, chunk_size)  # before SL: fail at once
-    save_every = max(n_steps // n_saves, 1)
-    n_steps = save_every * (n_steps // save_every)
     b = float(params.half_backlash)
     out = []
     for index, (name, t_in, t_out) in enumerate(regimes):
