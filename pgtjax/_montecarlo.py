@@ -394,7 +394,7 @@ def monte_carlo(
     check_contact_stiffness_over_time(system, t0, dt, n_steps)
     check_stability(system, t0, horizon=n_steps * float(dt))
     integrator = resolve_integrator(integrator, noise_scheme)
-    check_options(n_samples, chunk_size, checkpoint, resume, distributed=distributed)
+    checkpoint = check_options(n_samples, chunk_size, checkpoint, resume, distributed=distributed)
     if propagation not in PROPAGATIONS:
         raise ValueError(f"`propagation` must be one of {PROPAGATIONS}, got {propagation!r}")
     eigen = None
@@ -448,7 +448,6 @@ def monte_carlo(
     per_device = min(chunk_size, -(-n_samples // (n_proc * n_dev)))
     round_size = n_proc * n_dev * per_device
     n_rounds = -(-n_samples // round_size)
-    checkpoint = _checkpoint_path(checkpoint, resume, n_proc, proc)
     checkpoint_every = check_count("checkpoint_every", checkpoint_every)
     description = dict(
         run=tree_digest(system, key, u0, v0, init_factor, observables, hist_edges, integrator),
