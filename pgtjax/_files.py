@@ -4,6 +4,7 @@ run leaves the previous file (or none), never a truncated one under the final na
 from __future__ import annotations
 
 import datetime
+import fnmatch
 import hashlib
 import json
 import os
@@ -91,7 +92,38 @@ def _remove_abandoned_staging(out: Path) -> None:
             continue
 
 
-def publish(out, write: Callable[[Path], list[Path]], *, command=None) -> list[Path]:
+#: one line for the files every run writes beside its own (see :func:`publish`'s ``index``)
+COMMON_FILES = {
+    "README.txt": "this list",
+    MANIFEST: "written last: status, command line, pgtjax version, every file with its size and SHA-256",
+    "parameters.toml": "every parameter of the run (defaults filled in, --set applied); --params reproduces it",
+    "summary.json": "the run's figures of merit; every number with its unit (key suffix or 'unit' entry)",
+}
+
+
+def index_text(title: str, names: list[str], index: dict[str, str]) -> str:
+    """``README.txt``: ``title`` and one line per file name, from the first fnmatch pattern of ``index`` (or
+    :data:`COMMON_FILES`) that matches it."""
+    lines = [title, "=" * len(title), ""]
+    width = max(map(len, names), default=0)
+    for name in names:
+        line = next(
+            (text for pattern, text in {**COMMON_FILES, **index}.items() if fnmatch.fnmatch(name, pattern)),
+            "(no description)",
+        )
+        lines.append(f"{name.ljust(width)}  {line}")
+    lines += ["", f"{PREVIOUS}/: the previous run's files, if a run wrote into this folder before", ""]
+    return "\n".join(lines)
+
+
+def publish(
+    out,
+    write: Callable[[Path], list[Path]],
+    *,
+    command=None,
+    index: dict[str, str] | None = None,
+    title: str = "",
+) -> list[Path]:
     """Write a run's outputs into the folder ``out`` so that no interrupted or failed run leaves a set that
     looks complete. ``write(folder)`` writes the files into a hidden staging folder inside ``out`` and returns
     their paths (paths it returns outside that folder, e.g. a checkpoint written during the run, are listed
@@ -99,7 +131,8 @@ def publish(out, write: Callable[[Path], list[Path]], *, command=None) -> list[P
     manifest lists) are moved to ``out/previous-run/``, the new files are moved in, and ``manifest.json``
     (status, command line, version, and every file with its size and SHA-256) is written last. Returns the
     final paths. A failure before the move leaves ``out`` as it was; one during the move keeps the staging
-    folder and says where everything is."""
+    folder and says where everything is. With ``index`` ({fnmatch pattern: one line}), a ``README.txt`` headed
+    ``title`` lists every file of the run with its line."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     _remove_abandoned_staging(out)
@@ -113,6 +146,15 @@ def publish(out, write: Callable[[Path], list[Path]], *, command=None) -> list[P
         missing = [str(p) for p in written if not p.is_file()]
         if missing:
             raise RuntimeError(f"publish: the run reported files it did not write: {missing}")
+        if index is not None:
+            names = {"README.txt", MANIFEST}
+            for p in written:  # staged files, and those written in place inside ``out`` (a checkpoint)
+                for folder in (staging.resolve(), out.resolve()):
+                    if folder in p.resolve().parents:
+                        names.add(p.resolve().relative_to(folder).as_posix())
+                        break
+            text = index_text(title or out.name, sorted(names), index)
+            written.append(write_text(staging / "README.txt", text))
         staged = [p for p in written if staging.resolve() in p.resolve().parents]
         in_place = [p for p in written if p not in staged]
         old = [p for p in _previous_files(out) if p.is_file()]  # read before it is marked incomplete

@@ -23,6 +23,7 @@ import matplotlib as mpl
 import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.figure import Figure
+from matplotlib.patches import Patch
 
 STYLE = {
     "font.size": 9,
@@ -42,12 +43,25 @@ LINESTYLES = {
     "SL energy": dict(color="tab:red", ls=":"),
 }
 
+#: more cycles of ``mean_std_figure``'s ``cycle`` than this in a panel are drawn per cycle (no aliasing)
+MAX_DRAWN_CYCLES = 12
+
 _SCALE = {"m": (1e6, "µm"), "rad": (1.0, "rad"), "N": (1e-3, "kN"), "m/s": (1e3, "mm/s")}
+#: SI prefixes by which :func:`scaled` brings a magnitude into [1, 1000) when it is given one
+_PREFIXES = ((1e-9, "n"), (1e-6, "µ"), (1e-3, "m"), (1.0, ""), (1e3, "k"), (1e6, "M"), (1e9, "G"))
+_PREFIXED_UNITS = {"m", "rad", "N", "m/s", "N m", "Pa", "N/m"}
 
 
-def scaled(unit: str):
-    """(factor, display unit) for plotting SI quantities at a readable scale."""
-    return _SCALE.get(unit, (1.0, unit))
+def scaled(unit: str, magnitude: float | None = None):
+    """(factor, display unit) for plotting SI quantities at a readable scale: with ``magnitude`` (the
+    largest |value| to be shown) the SI prefix that puts it in [1, 1000) (µm, mrad, kN...), else a fixed
+    choice per unit; units without prefixes are returned as they are."""
+    if magnitude is None or unit not in _PREFIXED_UNITS or not np.isfinite(magnitude) or magnitude <= 0:
+        return _SCALE.get(unit, (1.0, unit))
+    size, prefix = next(
+        ((size, prefix) for size, prefix in reversed(_PREFIXES) if magnitude >= size), _PREFIXES[0]
+    )
+    return 1.0 / size, prefix + unit
 
 
 def _time_axis(times):
@@ -71,6 +85,48 @@ def readable_ylim(ax, min_relative_span: float = 1e-2) -> None:
         ax.set_ylim(centre - half, centre + half)
 
 
+def cycle_envelope(times, values, period: float):
+    """Per window of length ``period`` (s) from ``times[0]``: (mid times, min, max, average) of ``values``.
+    Windows with fewer than 80 % of the fullest window's points (a truncated last cycle) are dropped."""
+    t, y = np.asarray(times, float), np.asarray(values, float)
+    index = np.floor((t - t[0]) / period + 1e-9).astype(int)
+    counts = np.bincount(index)
+    keep = np.flatnonzero(counts >= max(2, 0.8 * counts.max()))
+    rows = [(t[index == k], y[index == k]) for k in keep]
+    return tuple(np.array(v) for v in zip(*[(tk.mean(), yk.min(), yk.max(), yk.mean()) for tk, yk in rows]))
+
+
+def _second_error(mean, second, se_mean, se_second, kind):
+    """Standard error of the plotted second moment: that of the std, or of the mean square m^2 + s^2 by the
+    delta method (the estimates of m and s are uncorrelated for a Gaussian quantity)."""
+    if kind != "mean square":
+        return se_second
+    std = np.sqrt(np.maximum(second - mean**2, 0.0))
+    return np.hypot(2.0 * mean * se_mean, 2.0 * std * se_second)
+
+
+def _transient_free_ylim(ax, curves: list, skip: float = 0.03) -> None:
+    """y-range of the ``[(t, y)]`` curves after the first ``skip`` of the time axis, so that a std growing
+    from the deterministic start (0 at t = 0) does not squeeze the stationary detail to the top of the
+    panel."""
+    t_all = np.concatenate([np.asarray(t, float) for t, _ in curves])
+    if t_all.size < 10:
+        return
+    start = t_all.min() + skip * (t_all.max() - t_all.min())
+    values = np.concatenate([np.asarray(y, float)[np.asarray(t) >= start] for t, y in curves])
+    values = values[np.isfinite(values)]
+    if values.size == 0:
+        return
+    lo, hi = float(values.min()), float(values.max())
+    magnitude = max(abs(lo), abs(hi), 1e-300)
+    if hi - lo < 1e-2 * magnitude:  # nearly constant: drawn flat, as :func:`readable_ylim` does
+        centre = 0.5 * (lo + hi)
+        ax.set_ylim(centre - 5e-3 * magnitude, centre + 5e-3 * magnitude)
+        return
+    pad = 0.08 * (hi - lo)
+    ax.set_ylim(lo - pad, hi + pad)
+
+
 def mean_std_figure(
     times,
     curves: dict,
@@ -79,39 +135,105 @@ def mean_std_figure(
     second: str = "std",
     styles: dict | None = None,
     subtitle: str = "",
+    cycle: float | None = None,
+    cycle_name: str = "mesh cycle",
 ):
     """One column per quantity, rows = mean and standard deviation (or mean square, ``second="mean square"``).
 
-    ``curves[label][quantity] = (mean array, second array)``; ``quantities`` = [(name, unit)]; ``times`` (s)
-    is one array for every curve or ``{label: array}`` (e.g. SL saved more densely than MC); ``styles``
-    overrides :data:`LINESTYLES` per label (e.g. markers for a sparser curve); ``subtitle`` is a line of small
-    print under the title. Returns a :class:`~matplotlib.figure.Figure` outside pyplot (see the module's
-    note).
+    ``curves[label][quantity] = (mean, second)`` arrays, or ``(mean, second, se_mean, se_second)`` with
+    standard errors (Monte Carlo), drawn as 95 % error bars (1.96 s.e.) on the label's markers; lines are drawn
+    above markers. ``quantities`` = [(name, SI unit)], shown with a readable prefix (:func:`scaled`);
+    ``times`` (s) is one array for every curve or ``{label: array}``; ``styles`` overrides :data:`LINESTYLES`
+    per label (e.g. markers, ``ls="none"``); ``subtitle`` is a line of small print under the title.
+
+    ``cycle`` (s): the period of a fast oscillation (the meshing). When the curves span more than
+    :data:`MAX_DRAWN_CYCLES` of them, each curve is drawn per cycle instead of point by point, which would
+    alias: lines as a band (the range within each cycle) around the cycle average, markers at the cycle
+    average with the mean of their standard errors (an upper bound of the average's). The legend sits below
+    the panels. Returns a :class:`~matplotlib.figure.Figure` outside pyplot (see the module's note).
     """
     styles = {**LINESTYLES, **(styles or {})}
     times_of = times if isinstance(times, dict) else {label: times for label in curves}
-    t_scale, t_unit = _time_axis(next(iter(times_of.values())))
+    t_all = np.concatenate([np.asarray(times_of[label], float) for label in curves])
+    t_scale, t_unit = _time_axis(t_all)
+    span = float(t_all.max() - t_all.min()) if t_all.size else 0.0
+    per_cycle = cycle is not None and span > MAX_DRAWN_CYCLES * cycle
+    handles = {}
     with mpl.rc_context(STYLE):
-        fig = Figure(figsize=(2.6 * len(quantities) + 0.6, 4.4))
+        fig = Figure(figsize=(2.6 * len(quantities) + 0.6, 4.8), layout="constrained")
         axes = fig.subplots(2, len(quantities), squeeze=False, sharex=True)
         for j, (name, unit) in enumerate(quantities):
-            factor, shown = scaled(unit)
+            magnitude = max(  # of the mean and of the std (or root mean square): one prefix for both rows
+                float(
+                    np.nanmax(
+                        np.abs(np.asarray(d[name][k], float)) ** (0.5 if k and second == "mean square" else 1)
+                    )
+                )
+                for d in curves.values()
+                for k in (0, 1)
+            )
+            factor, shown = scaled(unit, magnitude)
             f2 = factor**2 if second == "mean square" else factor
+            drawn = {0: [], 1: []}
             for label, data in curves.items():
-                mean, std = data[name]
-                t = np.asarray(times_of[label]) * t_scale
-                axes[0, j].plot(t, np.asarray(mean) * factor, label=label, **styles.get(label, {}))
-                axes[1, j].plot(t, np.asarray(std) * f2, label=label, **styles.get(label, {}))
+                mean, moment2 = (np.asarray(a, float) for a in data[name][:2])
+                t = np.asarray(times_of[label], float)
+                errors = None
+                if len(data[name]) == 4:
+                    se_mean, se_second = (np.asarray(a, float) for a in data[name][2:])
+                    errors = (se_mean, _second_error(mean, moment2, se_mean, se_second, second))
+                style = {"color": f"C{list(curves).index(label)}", **styles.get(label, {})}
+                markers = style.get("ls", style.get("linestyle")) == "none"
+                for row, (y, f) in enumerate(((mean, factor), (moment2, f2))):
+                    ax = axes[row, j]
+                    err = None if errors is None else errors[row]
+                    if per_cycle:
+                        tc, lo, hi, avg = cycle_envelope(t, y, cycle)
+                        err = None if err is None else cycle_envelope(t, err, cycle)[3]
+                        if not markers:
+                            ax.fill_between(
+                                tc * t_scale, lo * f, hi * f, color=style["color"], alpha=0.25, lw=0
+                            )
+                            drawn[row] += [(tc, lo * f), (tc, hi * f)]
+                        t_plot, y_plot = tc, avg
+                    else:
+                        t_plot, y_plot = t, y
+                    if markers and err is not None:
+                        artist = ax.errorbar(
+                            t_plot * t_scale,
+                            y_plot * f,
+                            yerr=1.96 * err * f,
+                            elinewidth=0.6,
+                            capsize=0,
+                            zorder=2,
+                            **{**style, "ms": style.get("ms", 2.0)},
+                        )
+                    else:
+                        (artist,) = ax.plot(t_plot * t_scale, y_plot * f, zorder=2 if markers else 3, **style)
+                    drawn[row].append((t_plot, y_plot * f))
+                    if markers and err is not None:  # the error bars stay inside the panel
+                        drawn[row] += [
+                            (t_plot, (y_plot - 1.96 * err) * f),
+                            (t_plot, (y_plot + 1.96 * err) * f),
+                        ]
+                    suffix = ", 95 % error bars" if markers and err is not None else ""
+                    handles.setdefault(f"{label}{suffix}", artist)
             axes[0, j].set_title(name)
             axes[0, j].set_ylabel(f"mean ({shown})")
             axes[1, j].set_ylabel(f"{second} ({shown}²)" if second == "mean square" else f"std ({shown})")
             axes[1, j].set_xlabel(f"time ({t_unit})")
             for ax in axes[:, j]:
                 readable_ylim(ax)
-        axes[0, 0].legend(loc="best")
+            _transient_free_ylim(axes[1, j], drawn[1])
         if title:
             fig.suptitle(title + (f"\n{subtitle}" if subtitle else ""), fontsize=9 if subtitle else None)
-        fig.tight_layout()
+        if per_cycle:
+            handles[f"shaded: range within each {cycle_name}; lines and markers: {cycle_name} averages"] = (
+                Patch(color="0.6", alpha=0.4, lw=0)
+            )
+        fig.legend(
+            list(handles.values()), list(handles), loc="outside lower center", ncol=min(len(handles), 4)
+        )
     return fig
 
 

@@ -360,3 +360,52 @@ def test_figures_of_a_regime_shorter_than_the_running_mean_window(stationary, tm
     )
     paths = study._figures(clipped, tmp_path, window_s=0.005)
     assert paths and all(p.exists() and p.stat().st_size > 0 for p in paths)
+
+
+def _assert_readme_lists_every_file(folder: Path) -> None:
+    readme = (folder / "README.txt").read_text()
+    assert "(no description)" not in readme
+    listed = {
+        line.split()[0] for line in readme.splitlines()[3:] if line and not line.startswith("previous-run")
+    }
+    on_disk = {p.name for p in folder.iterdir() if p.is_file()}
+    assert on_disk <= listed, on_disk - listed
+
+
+def test_stft_window_is_checked_before_any_simulation(monkeypatch, params):
+    """Regression: the bench computed both regimes (19 s at the defaults) and then rejected its STFT window;
+    now a window outside [8 saved samples, the shorter regime] is a ValueError naming --stft-window and the
+    accepted range before anything is integrated."""
+
+    def no_simulation(*args, **kwargs):
+        raise AssertionError("simulated before checking the STFT window")
+
+    monkeypatch.setattr(study, "run_regime", no_simulation)
+    for window in (0.5, 3e-4):  # longer than the 0.05 s stationary run; shorter than 8 samples of 0.1 ms
+        with pytest.raises(ValueError, match="--stft-window") as err:
+            study.run_study(params, t_end=0.4, stationary_t_end=0.05, stft_window=window, progress=False)
+        assert "0.0008 s" in str(err.value) and "0.05" in str(err.value)
+    assert study.check_stft_window(0.02, dt=1e-4, save_every=1, t_end=0.4, stationary_t_end=0.05) == 0.02
+
+
+def test_cli_run_writes_readme_and_a_summary_with_units(tmp_path, capsys):
+    from pgtjax._summary import missing_units
+
+    parser = argparse.ArgumentParser(prog="pgtjax")
+    cli_back_to_back.register(parser.add_subparsers(dest="command"))
+    out = tmp_path / "bench"
+    argv = ["back-to-back", "--t-end", "0.06", "--stationary-t-end", "0.03", "--ramp-start", "0.01"]
+    argv += ["--ramp-duration", "0.04", "--stft-window", "0.01", "--out", str(out), "--quiet"]
+    args = parser.parse_args(argv)
+    assert args.func(args) == 0
+    printed = capsys.readouterr().out
+    assert "note: Below the paper's values" in printed  # the Hertzian comparison says why it disagrees
+    _assert_readme_lists_every_file(out)
+    summary = json.loads((out / "summary.json").read_text())
+    assert missing_units(summary) == []
+    ridge = summary["ridges"]["run_up"]["ring_T_acceleration"]
+    assert ridge["order"] == 3 and 0.0 <= ridge["max_relative_error_ratio"] < 0.5
+    assert (
+        summary["settings"]["save_every_count"] == 1 and summary["modes_free_bench"]["rows"][0]["mode"] == 1
+    )
+    assert summary["hertz"]["quasi_static"]["zone_A"]["sun_planet"]["hertz_secant_N_per_m"] > 0

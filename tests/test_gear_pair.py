@@ -88,8 +88,20 @@ def test_light_load_loses_contact_and_mc_pdf_is_not_gaussian(small_study):
 
 
 def test_outputs_reload_and_cli(tmp_path, small_study):
+    import json
+
+    from pgtjax._summary import missing_units
+
     written = study.write_outputs(small_study, tmp_path)
     assert (tmp_path / "summary.json").exists() and any(p.suffix == ".png" for p in written)
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert missing_units(summary) == []
+    # the PDF time the summary lists is the one plotted (in the figure's file name and title)
+    plotted = summary["settings"]["pdf_times_plotted_s"]
+    assert plotted == [float(t) for t in small_study.regimes[0].mc.histogram_times]
+    assert all((tmp_path / f"heavy_pdf_t{t * 1e3:.0f}ms.png").is_file() for t in plotted)
+    row = summary["errors"]["rows"][0]
+    assert {"torque_in_Nm", "delta_std_error_ratio", "contact_loss_mc_probability"} <= set(row)
     back, attrs = pg.load_results(tmp_path / "heavy_mc.npz")
     assert back.dof_names == ("y1", "y2", "z") and attrs["regime"] == "heavy"
     np.testing.assert_array_equal(back.std_u, small_study.regimes[0].mc.std_u)
@@ -109,3 +121,16 @@ def test_cli_entry_points(monkeypatch, capsys):
     assert capsys.readouterr().out.startswith(f"{'mode':>4s} {'f (Hz)':>12s}  shape (y1, y2, z)\n")
     scripts = [e for e in metadata.entry_points(group="console_scripts") if e.name == "pgtjax"]
     assert [e.value for e in scripts] == ["pgtjax.cli:main"] and scripts[0].load() is cli.main
+
+
+def test_cli_writes_readme_listing_every_file(tmp_path, capsys):
+    out = tmp_path / "gp"
+    argv = ["gear-pair", "--samples", "20", "--t-end", "0.002", "--saves", "4", "--quiet", "--out", str(out)]
+    assert cli.main(argv) == 0, capsys.readouterr().err
+    readme = (out / "README.txt").read_text()
+    assert "(no description)" not in readme
+    listed = {
+        line.split()[0] for line in readme.splitlines()[3:] if line and not line.startswith("previous-run")
+    }
+    on_disk = {p.name for p in out.iterdir() if p.is_file()}
+    assert on_disk <= listed and any(n.endswith("_pdf_t2ms.png") for n in on_disk), (on_disk, listed)

@@ -12,9 +12,11 @@ import numpy as np
 import pytest
 
 import pgtjax as pg
+from pgtjax._summary import missing_units
 from pgtjax.cli import ring as cli_ring
 from pgtjax.models import ring_moving_load as rml
 from pgtjax.models.ring import RingParams
+from pgtjax.studies import ring_moving_load as rml_study
 
 
 def _small(**kw):
@@ -212,6 +214,13 @@ def test_cli_smoke(tmp_path, capsys):
     assert args.func(args) == 0
     assert (tmp_path / "summary.json").is_file() and (tmp_path / "fig6_7_sweep.png").exists() is False
     assert (tmp_path / "fig6_4_mid_base.png").is_file() and (tmp_path / "modes_ch6_ring.png").is_file()
+    _assert_readme_lists_every_file(tmp_path)
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert missing_units(summary) == []
+    assert summary["magnitude_check"]["finding"] == rml_study.MAGNITUDE_NOTE
+    assert rml_study.MAGNITUDE_NOTE in capsys.readouterr().out  # the CLI prints the note with the magnitudes
+    assert set(summary["speeds"]) == {"30_rad_per_s"} and summary["supports_mid_max_std"]["case3_soft_pins"]
+    assert summary["mc_vs_recursion"][0]["max_std_error_in_se"] >= 0.0
     res, attrs = pg.load_results(tmp_path / "base_sl.npz")
     assert rml.MID_NAME in res.observable_names and attrs["carrier_speed_rad_s"] == 2.8
     capsys.readouterr()
@@ -221,3 +230,22 @@ def test_cli_smoke(tmp_path, capsys):
     args = parser.parse_args(["ring-modal", "--params", str(bad)])
     assert args.func(args) == 2
     assert "pgtjax: error:" in capsys.readouterr().err
+
+
+def _assert_readme_lists_every_file(folder) -> None:
+    readme = (folder / "README.txt").read_text()
+    assert "(no description)" not in readme
+    listed = {
+        line.split()[0] for line in readme.splitlines()[3:] if line and not line.startswith("previous-run")
+    }
+    on_disk = {p.name for p in folder.iterdir() if p.is_file()}
+    assert on_disk <= listed, on_disk - listed
+
+
+def test_free_vibration_cli_writes_readme_and_says_why_table_5_3_disagrees(tmp_path, capsys):
+    from pgtjax.studies import ring_free_vibration as fv
+
+    args = _parser().parse_args(["ring-free-vibration", "--n-elements", "16", "--out", str(tmp_path)])
+    assert args.func(args) == 0
+    assert fv.DISAGREEMENT_NOTE in capsys.readouterr().out
+    _assert_readme_lists_every_file(tmp_path)

@@ -63,8 +63,11 @@ def _run(args) -> int:
             study.write_outputs(result, folder)
             + [write_parameters(folder, data, "back_to_back", args.command, outside)]
         ),
+        index=study.FILE_INDEX,
+        title="pgtjax back-to-back: planetary bench of the bench paper (Hammami et al.), stationary regime and run-up",
     )
     print(study.format_hertz(result.hertz))
+    print(f"note: {study.hertz_note(result.hertz)}")
     print(study.format_ridges(result.ridges))
     print(
         f"done in {time.perf_counter() - start:.1f} s; {len(written)} files written to {Path(out).resolve()}"

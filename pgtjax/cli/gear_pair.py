@@ -98,9 +98,15 @@ def _run_gear_pair(args) -> int:
         lambda folder: (
             study.write_outputs(result, folder) + [write_parameters(folder, data, "gear_pair", args.command)]
         ),
+        index=study.FILE_INDEX,
+        title="pgtjax gear-pair: spur gear pair with backlash, SL against Monte Carlo (thesis ch. 4)",
     )
     if args.samples:
-        print(study.format_error_table(study.error_table(result)))
+        rows = study.error_table(result)
+        print(study.format_error_table(rows))
+        notes = study.format_impact_notes(rows)
+        if notes:
+            print(notes)
     print(f"done in {time.perf_counter() - start:.1f} s; {len(written)} files written to {out.resolve()}")
     return 0
 

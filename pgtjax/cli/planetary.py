@@ -13,7 +13,16 @@ from pathlib import Path
 from .._files import publish
 from ._params import add_parameter_options, parameters, write_parameters
 from ._scale import add_scale_out_options, checkpoint_path, start_processes
-from ._types import criteria, element_count, nonneg_int, positive_float, positive_int, seed
+from ._types import (
+    criteria,
+    csv_ints,
+    csv_positive_floats,
+    element_count,
+    nonneg_int,
+    positive_float,
+    positive_int,
+    seed,
+)
 
 
 def _add_planetary_options(p: argparse.ArgumentParser, quick: bool) -> None:
@@ -29,14 +38,31 @@ def _add_planetary_options(p: argparse.ArgumentParser, quick: bool) -> None:
     )
     p.add_argument("--dt", type=positive_float, default=0.0027, help="time step in s (thesis: 0.0027)")
     p.add_argument(
-        "--saves", type=positive_int, default=200, help="Monte Carlo saved times (default %(default)s)"
+        "--saves",
+        type=positive_int,
+        default=2000,
+        help="Monte Carlo saved times (default %(default)s: about 20 per mesh period, which resolves the "
+        "meshing frequency in SL and MC alike)",
     )
     p.add_argument(
         "--sl-refine",
         type=positive_int,
-        default=10,
-        help="SL is saved this many times as often as MC (default %(default)s: resolves the "
-        "meshing frequency)",
+        default=1,
+        help="SL is saved this many times as often as MC (default %(default)s; more saves SL more densely "
+        "than MC, whose statistics then cost less per save)",
+    )
+    p.add_argument(
+        "--rim-thicknesses",
+        type=csv_positive_floats,
+        default=(0.087, 0.128, 0.168),
+        help="rim thicknesses in m of the rim-thickness sweep (default 0.087,0.128,0.168: thesis Figs. 3.12-3.15)",
+    )
+    p.add_argument(
+        "--support-counts",
+        type=csv_ints,
+        default=None,
+        help="numbers of equally spaced bolts of the support sweep, each dividing the ring elements "
+        "(default: those of 3,6,9 that do)",
     )
     p.add_argument(
         "--criteria", type=criteria, default="force", help="comma-separated SL criteria (force, energy)"
@@ -82,6 +108,11 @@ def _run_planetary(args) -> int:
         raise ValueError("`--resume` continues a Monte Carlo; it needs `--samples` >= 2")
     process = start_processes(args)  # before any JAX computation
     params, data = _params(args)
+    if args.support_counts is not None and params.ring_model == "elastic":
+        try:  # before any simulation
+            study.check_support_counts(params, args.support_counts)
+        except ValueError as err:
+            raise ValueError(str(err).replace("`support_counts`", "`--support-counts`")) from None
     out = args.out
     study_kw = dict(
         n_samples=args.samples,
@@ -101,7 +132,13 @@ def _run_planetary(args) -> int:
         return 0
     print(
         study.format_header(
-            params, periods=args.periods, dt=args.dt, criteria=args.criteria, n_samples=args.samples
+            params,
+            periods=args.periods,
+            dt=args.dt,
+            criteria=args.criteria,
+            n_samples=args.samples,
+            n_saves=args.saves,
+            sl_refine=args.sl_refine,
         )
     )
     if jax.process_count() > 1:
@@ -113,7 +150,14 @@ def _run_planetary(args) -> int:
     sweeps = None
     if not args.no_sweeps:
         sweeps = study.standard_sweeps(
-            params, dt=args.dt, periods=args.periods, n_saves=args.saves, sl_refine=args.sl_refine, say=step
+            params,
+            dt=args.dt,
+            periods=args.periods,
+            n_saves=args.saves,
+            sl_refine=args.sl_refine,
+            thicknesses=args.rim_thicknesses,
+            support_counts=args.support_counts,
+            say=step,
         )
     step("modal analysis")
     modal = study.modal_table(params)
@@ -128,6 +172,8 @@ def _run_planetary(args) -> int:
             + checkpoint
             + [write_parameters(folder, data, "planetary", args.command)]
         ),
+        index=study.FILE_INDEX,
+        title=f"pgtjax {args.command}: planetary gear train (thesis ch. 3)",
     )
     if result.mc is not None:
         print(study.format_error_summary(study.error_summary(result)))

@@ -76,12 +76,17 @@ def _run_free_vibration(args) -> int:
         pitch_radius=args.pitch_radius, face_width=args.face_width, n_elements=args.n_elements
     )
     print(json.dumps(fv.json_table(table), indent=2) if args.json else fv.format_table(table))
+    if not args.json:
+        print(f"note: {fv.DISAGREEMENT_NOTE}")
     if args.out is not None:
         written = publish(
             args.out,
             lambda folder: fv.write_outputs(
                 folder, pitch_radius=args.pitch_radius, face_width=args.face_width, n_elements=args.n_elements
             ),
+            index=fv.FILE_INDEX,
+            title="pgtjax ring-free-vibration: free Table 5.1 ring gear, Models I and II against Table 5.3 "
+            "(thesis ch. 5)",
         )
         print(f"{len(written)} files written to {Path(args.out).resolve()}")
     return 0
@@ -129,6 +134,8 @@ def _run_moving_load(args) -> int:
                 )
             ]
         ),
+        index=study.FILE_INDEX,
+        title="pgtjax ring-moving-load: bolted ring gear under random moving loads (thesis ch. 6, Figs. 6.3-6.9)",
     )
     print(study.format_summary(result))
     print(

@@ -40,14 +40,33 @@ import numpy as np
 from .. import params as _params
 from .. import plots
 from .._deterministic import simulate
-from .._files import write_atomic, write_text
+from .._files import write_atomic
 from .._modal import modal_analysis
 from .._results import Trajectory, save_results
+from .._summary import write_summary
 from ..models import back_to_back as bb
 from ..models.mesh_stiffness import HARSHA_DEFLECTION_EXP
 
 PAPER_HS_SUN = (1.13e9, 1.234e9)  # N/m, mean Hertzian stiffness sun-planet 1, zone A -> end of run-up
 PAPER_HS_RING = (2.102e9, 2.243e9)  # N/m, ring-planet 1
+
+#: the files :func:`write_outputs` writes (fnmatch pattern -> one line), for the output folder's README.txt
+FILE_INDEX = {
+    "*_trajectory.npz": "simulated displacements u = r_b theta (m), velocities and mesh deflections of the 12 "
+    "DOF over time, one regime (pgtjax.load_results)",
+    "*_mesh.npz": "mesh histories of the regime: phase, transmission error, mesh forces, Hertzian and mesh "
+    "stiffness, pairs in contact, accelerations, speeds and torques (units in the 'units' entry)",
+    "*_operating.png": "motor and test-carrier speed, circulating and motor torque, and mesh frequency Z_r f_c "
+    "over time (the operating conditions of bench-paper section 5)",
+    "*_stiffness.png": "Hertzian and total mesh stiffness of sun-planet 1 and ring-planet 1 over time with a "
+    "20 ms running mean and the paper's mean Hertzian stiffness (bench paper section 5)",
+    "*_te_force_acceleration.png": "transmission error and mesh force of ring-planet 1 and the test-ring "
+    "acceleration over time",
+    "*_stft_ring_T_acceleration.png": "STFT (dB) of the test-ring acceleration with the lines k Z_r f_c, "
+    "k = 3, 6, 9 (bench paper's spectrogram of the ring acceleration)",
+    "*_stft_te_ring_planet1.png": "STFT (dB) of the ring-planet 1 transmission error with k Z_r f_c, "
+    "k = 1, 2, 3",
+}
 
 
 # ------------------------------------------------------------------------------------------------ STFT
@@ -267,6 +286,9 @@ def run_study(
     p = bb.default_params() if params is None else params
     if t_end is None:
         t_end = float(_params.read_params(None, "back_to_back")["run_up"]["t_end_s"])
+    check_stft_window(
+        stft_window, dt=dt, save_every=save_every, t_end=t_end, stationary_t_end=stationary_t_end
+    )
     say = print if progress else (lambda *a, **k: None)
     regimes = []
     say(
@@ -304,6 +326,44 @@ def run_study(
             stft_window_s=window,
         ),
     )
+
+
+def _saved_count(t_end: float, dt: float, save_every: int) -> int:
+    """Number of saved times of :func:`run_regime` (its rounding of ``t_end`` to whole saves)."""
+    n_steps = int(round(t_end / dt))
+    n_steps = max(save_every * (n_steps // save_every), save_every)
+    return n_steps // save_every + 1
+
+
+def check_stft_window(
+    stft_window: float, *, dt: float, save_every: int, t_end: float, stationary_t_end: float
+) -> float:
+    """``ValueError`` naming ``--stft-window`` and its accepted range unless the STFT window (after
+    :func:`run_study`'s clamp to half the run-up) spans at least 8 saved samples and at most the shorter
+    regime; called before any simulation. Returns the window used."""
+    for name, value in (("--t-end", t_end), ("--stationary-t-end", stationary_t_end), ("--dt", dt)):
+        if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+            raise ValueError(f"`{name}` must be a finite number of seconds > 0, got {value!r}")
+    if not (isinstance(stft_window, int | float) and math.isfinite(stft_window) and stft_window > 0):
+        raise ValueError(
+            f"`--stft-window` (stft_window) must be a finite number of seconds > 0, got {stft_window!r}"
+        )
+    step = dt * save_every
+    n_stat, n_run = _saved_count(stationary_t_end, dt, save_every), _saved_count(t_end, dt, save_every)
+    window = min(stft_window, 0.5 * (n_run - 1) * step)
+    lo, hi = 8 * step, min(n_stat, n_run) * step
+    if not (8 <= int(round(window / step)) <= min(n_stat, n_run)):
+        clamp = (
+            f"; the run-up ({(n_run - 1) * step:g} s, --t-end) limits it to half its length, {window:g} s"
+            if window < stft_window
+            else ""
+        )
+        raise ValueError(
+            f"`--stft-window` (stft_window) must lie between {lo:g} s (8 saved samples of dt x save_every = "
+            f"{step:g} s) and {hi:g} s (the shorter regime: --stationary-t-end or --t-end), got "
+            f"{stft_window:g} s{clamp}"
+        )
+    return window
 
 
 # ------------------------------------------------------------------------------------------------ analyses
@@ -517,6 +577,95 @@ MESH_UNITS = dict(
 )
 
 
+def hertz_note(h: dict) -> str:
+    """One line on why the model's mean Hertzian stiffness lies below the paper's (module docstring)."""
+    qa = h["quasi_static"]["zone_A"]
+    qb = h["quasi_static"]["end_of_run_up"]
+    return (
+        f"Below the paper's values: its face width and zone torques are not given (Figs. 4-5 lost); with the "
+        f"assumed {h['assumptions']['face_width_m'] * 1e3:g} mm and {qa['torque_Nm']:g} -> {qb['torque_Nm']:g} "
+        f"N m, Harsha's law gives these; {h['face_width_for_paper_zone_A_sun_m'] * 1e3:.0f} mm would match the "
+        f"zone-A sun value, and the paper's rise needs {h['load_factor_for_paper_rise']['sun_planet']:.1f}x "
+        f"the load; its ring/sun ratio ({h['paper_ring_to_sun_ratio']:.2f}, here "
+        f"{h['model_ring_to_sun_ratio']:.2f}) is not explained by either"
+    )
+
+
+def _stiffness_units(d: dict) -> dict:
+    """``{hertz_secant, hertz_tangent, mesh}`` (N/m) with the unit in every key."""
+    return {f"{k}_stiffness_N_per_m" if k == "mesh" else f"{k}_N_per_m": v for k, v in d.items()}
+
+
+def _hertz_summary(h: dict) -> dict:
+    """:func:`hertz_comparison` with a unit in every key (summary.json)."""
+    out = dict(
+        note=hertz_note(h),
+        assumptions=h["assumptions"],
+        paper=dict(
+            unit="N/m",
+            values="mean Hertzian stiffness in zone A and at the end of the run-up",
+            sun_planet=list(h["paper"]["sun_planet"]),
+            ring_planet=list(h["paper"]["ring_planet"]),
+        ),
+        quasi_static={
+            zone: dict(
+                torque_Nm=q["torque_Nm"],
+                mesh_load_N=q["mesh_load_N"],
+                sun_planet=_stiffness_units(q["sun_planet"]),
+                ring_planet=_stiffness_units(q["ring_planet"]),
+            )
+            for zone, q in h["quasi_static"].items()
+        },
+        load_factor_for_paper_rise=dict(unit="1 (ratio of mesh loads)", **h["load_factor_for_paper_rise"]),
+        face_width_for_paper_zone_A_sun_m=h["face_width_for_paper_zone_A_sun_m"],
+        paper_ring_to_sun_ratio=h["paper_ring_to_sun_ratio"],
+        model_ring_to_sun_ratio=h["model_ring_to_sun_ratio"],
+    )
+    if "dynamic" in h:
+        d = h["dynamic"]
+        out["dynamic"] = dict(
+            unit="N/m",
+            zone_A=dict(d["zone_A"]),
+            end=dict(d["end"]),
+            windows_s=d["windows_s"],
+        )
+    return out
+
+
+def summary_dict(study: BackToBackStudy) -> dict:
+    """The content of ``summary.json`` (every number with its unit, :mod:`pgtjax._summary`)."""
+    settings = dict(study.settings)
+    return dict(
+        settings=dict(
+            dt_s=settings.get("dt_s"),
+            t_end_s=settings.get("t_end_s"),
+            stationary_t_end_s=settings.get("stationary_t_end_s"),
+            save_every_count=settings.get("save_every"),
+            stft_window_s=settings.get("stft_window_s"),
+        ),
+        hertz=_hertz_summary(study.hertz),
+        ridges=dict(
+            unit="1 (order k of the line k Z_r f_c)",
+            definition="largest |ridge - k Z_r f_c| / (k Z_r f_c) over the STFT frames",
+            **{
+                k: {
+                    kk: dict(order=vv["order"], max_relative_error_ratio=vv["max_relative_error"])
+                    for kk, vv in v.items()
+                }
+                for k, v in study.ridges.items()
+            },
+        ),
+        modes_free_bench=dict(
+            unit="1 (mode number)",
+            rows=[
+                dict(mode=r["mode"], frequency_hz=r["frequency_hz"], dominant_dof=r["dominant_dof"])
+                for r in study.modes
+            ],
+        ),
+        wall_s={r.name: r.wall_s for r in study.regimes},
+    )
+
+
 def write_outputs(study: BackToBackStudy, outdir) -> list[Path]:
     """Trajectories (``save_results``), mesh histories (``.npz`` with names and ``units``), summary JSON, PNGs."""
     import matplotlib.pyplot as plt
@@ -541,104 +690,149 @@ def write_outputs(study: BackToBackStudy, outdir) -> list[Path]:
         arrays = _mesh_arrays(reg)
         write_atomic(path, lambda p: np.savez_compressed(p, units=np.array(json.dumps(MESH_UNITS)), **arrays))
         written.append(path)
-        written += _figures(reg, outdir, study.settings.get("stft_window_s", 0.1))
-    summary = dict(
-        settings=study.settings,
-        hertz=study.hertz,
-        ridges={
-            k: {
-                kk: dict(order=vv["order"], max_relative_error=vv["max_relative_error"])
-                for kk, vv in v.items()
-            }
-            for k, v in study.ridges.items()
-        },
-        modes_free_bench=[
-            dict(mode=r["mode"], frequency_hz=r["frequency_hz"], dominant_dof=r["dominant_dof"])
-            for r in study.modes
-        ],
-        wall_s={r.name: r.wall_s for r in study.regimes},
-    )
-    path = outdir / "summary.json"
-    write_text(path, json.dumps(summary, indent=2))
-    written.append(path)
+        written += _figures(reg, outdir, study.settings.get("stft_window_s", 0.1), study.hertz)
+    written.append(write_summary(outdir / "summary.json", summary_dict(study)))
     plt.close("all")
     return written
 
 
-def _figures(reg: RegimeResult, outdir: Path, window_s: float) -> list[Path]:
+def _figures(reg: RegimeResult, outdir: Path, window_s: float, hertz: dict | None = None) -> list[Path]:
+    import textwrap
+
     import matplotlib.pyplot as plt
 
     t = reg.times
     js, jr = bb.CONTACT_NAMES.index("sun-planet1_T"), bb.CONTACT_NAMES.index("ring-planet1_T")
+    regime = reg.name.replace("_", "-")
     out = []
     with plt.rc_context(plots.STYLE):
-        fig, ax = plt.subplots(3, 1, figsize=(6.0, 6.0), sharex=True)
-        ax[0].plot(t, reg.motor_speed / bb.RPM, label="motor (prescribed)")
+        fig, ax = plt.subplots(3, 1, figsize=(6.0, 6.0), sharex=True, layout="constrained")
         ax[0].plot(
             t,
             reg.carrier_frequency * 60.0 / bb.carrier_ratio(reg.model.params),
-            "--",
-            label="test carrier x (Z_s+Z_r)/Z_s",
+            color="tab:orange",
+            lw=0.6,
+            label="test carrier × (Z_s+Z_r)/Z_s",
+        )
+        ax[0].plot(
+            t, reg.motor_speed / bb.RPM, color="tab:blue", lw=1.4, zorder=3, label="motor (prescribed)"
         )
         ax[0].set_ylabel("speed (rpm)")
-        ax[0].legend()
         ax[1].plot(t, reg.circulating_torque, label="circulating (test sun)")
-        ax[1].plot(t, reg.motor_torque, label="motor shaft")
+        ax[1].plot(t, reg.motor_torque, lw=0.6, label="motor shaft")
         ax[1].set_ylabel("torque (N m)")
-        ax[1].legend()
         ax[2].plot(t, reg.mesh_frequency)
-        ax[2].set_ylabel("Z_r f_c (Hz)")
+        ax[2].set_ylabel("mesh frequency Z_r f_c (Hz)")
         ax[2].set_xlabel("time (s)")
-        fig.suptitle(f"{reg.name.replace('_', ' ')}: operating conditions")
+        for a in ax[:2]:
+            a.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
+        for a in ax:
+            a.ticklabel_format(axis="y", useOffset=False)
+        fig.suptitle(f"{regime}: operating conditions (test carrier from the simulated speed)", fontsize=9)
         out.append(plots.save(fig, outdir / f"{reg.name}_operating.png"))
 
-        fig, ax = plt.subplots(2, 2, figsize=(8.0, 5.0), sharex=True)
+        fig, ax = plt.subplots(2, 2, figsize=(8.0, 5.6), sharex=True, layout="constrained")
         # 20 ms running mean (several mesh periods), shortened for a shorter run (mode="same" returns the
         # longer of the two inputs, so the window must not exceed the series)
         n_avg = min(max(int(round(0.02 / float(t[1] - t[0]))), 1), len(t))
         mean = lambda x: np.convolve(x, np.ones(n_avg) / n_avg, mode="same")  # noqa: E731
+        paper = {js: PAPER_HS_SUN, jr: PAPER_HS_RING}
         for col, (j, name) in enumerate(((js, "sun-planet 1"), (jr, "ring-planet 1"))):
             for row, series in enumerate((reg.mesh.hertz_secant, reg.mesh.mesh_stiffness)):
                 x = np.asarray(series[:, j]) * 1e-9
-                ax[row, col].plot(t, x, lw=0.4, color="tab:blue")
+                ax[row, col].plot(t, x, lw=0.4, color="tab:blue", label="instantaneous")
                 inner = slice(n_avg, len(t) - n_avg) if len(t) > 3 * n_avg else slice(None)
-                ax[row, col].plot(t[inner], mean(x)[inner], color="tab:red", lw=1.2, label="20 ms mean")
+                ax[row, col].plot(
+                    t[inner],
+                    mean(x)[inner],
+                    color="tab:red",
+                    lw=1.2,
+                    label=f"{1e3 * n_avg * (t[1] - t[0]):.0f} ms mean",
+                )
+            values = paper[j] if reg.name == "run_up" else paper[j][:1]
+            for k, v in enumerate(values):
+                ax[0, col].axhline(
+                    v * 1e-9,
+                    color="k",
+                    ls="--" if k == 0 else ":",
+                    lw=1.0,
+                    label=("paper mean, zone A" if k == 0 else "paper mean, end of run-up"),
+                )
             ax[0, col].set_title(f"{name} (test set)")
-            ax[0, col].set_ylabel("Hertzian stiffness (1e9 N/m)")
-            ax[0, col].legend(loc="lower right")
-            ax[1, col].set_ylabel("mesh stiffness (1e9 N/m)")
+            ax[0, col].set_ylabel("Hertzian stiffness (GN/m)")
+            ax[1, col].set_ylabel("mesh stiffness (GN/m)")
             ax[1, col].set_xlabel("time (s)")
-        fig.tight_layout()
+        handles, labels = ax[0, 0].get_legend_handles_labels()
+        fig.legend(handles, labels, loc="outside lower center", ncol=len(labels), frameon=False)
+        title = (
+            f"{regime}: mesh stiffness of the test set (Hertzian: Eq. 13 secant summed over pairs in contact)"
+        )
+        if hertz is not None:
+            title += "\n" + textwrap.fill(hertz_note(hertz).replace(" N m", "\u00a0N\u00a0m"), 130)
+        fig.suptitle(title, fontsize=9)
         out.append(plots.save(fig, outdir / f"{reg.name}_stiffness.png"))
 
-        fig, ax = plt.subplots(3, 1, figsize=(6.0, 6.0), sharex=True)
+        fig, ax = plt.subplots(3, 1, figsize=(6.4, 6.0), sharex=True, layout="constrained")
         ax[0].plot(t, np.asarray(reg.mesh.transmission_error[:, jr]) * 1e6, lw=0.6)
         ax[0].set_ylabel("TE ring-planet 1 (µm)")
         ax[1].plot(t, np.asarray(reg.mesh.force[:, jr]) * 1e-3, lw=0.6)
         ax[1].set_ylabel("mesh force ring-planet 1 (kN)")
-        for name in ("ring_T", "ring_R"):
-            ax[2].plot(t, reg.acceleration[:, bb.DOF_NAMES.index(name)], lw=0.5, label=name)
+        for name, label in (("ring_T", "test ring (ring_T)"), ("ring_R", "reaction ring (ring_R)")):
+            ax[2].plot(t, reg.acceleration[:, bb.DOF_NAMES.index(name)], lw=0.5, label=label)
         ax[2].set_ylabel("ring acceleration (m/s²)")
         ax[2].set_xlabel("time (s)")
-        ax[2].legend()
-        fig.tight_layout()
+        ax[2].legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
+        for a in ax:
+            a.ticklabel_format(axis="y", useOffset=False)
+        fig.suptitle(
+            f"{regime}: transmission error and mesh force of ring-planet 1 (test set), ring accelerations "
+            "(tangential, at the base radius)",
+            fontsize=9,
+        )
         out.append(plots.save(fig, outdir / f"{reg.name}_te_force_acceleration.png"))
 
         fs = 1.0 / float(t[1] - t[0])
-        for label, signal, orders in (
-            ("ring_T_acceleration", reg.acceleration[:, bb.DOF_NAMES.index("ring_T")], (3, 6, 9)),
-            ("te_ring_planet1", np.asarray(reg.mesh.transmission_error[:, jr]), (1, 2, 3)),
+        for label, signal, orders, what in (
+            (
+                "ring_T_acceleration",
+                reg.acceleration[:, bb.DOF_NAMES.index("ring_T")],
+                (3, 6, 9),
+                "test-ring acceleration",
+            ),
+            (
+                "te_ring_planet1",
+                np.asarray(reg.mesh.transmission_error[:, jr]),
+                (1, 2, 3),
+                "transmission error ring-planet 1",
+            ),
         ):
             ft, f, a = stft(signal, fs, window_s)
-            fig, axs = plt.subplots(figsize=(6.0, 4.0))
+            fig, axs = plt.subplots(figsize=(6.4, 4.0), layout="constrained")
             top = min(fs / 2, 1.3 * max(orders) * float(reg.mesh_frequency.max()))
             keep = f <= top
             db = 20 * np.log10(a[:, keep].T + 1e-30)
-            axs.pcolormesh(ft + t[0], f[keep], db, shading="auto", vmin=db.max() - 60, vmax=db.max())
-            for k in orders:
-                axs.plot(t, k * reg.mesh_frequency, "w--", lw=0.6)
-            axs.set_xlabel("time (s)")
+            db = db - db.max()
+            mesh = axs.pcolormesh(ft + t[0], f[keep], db, shading="auto", vmin=-60.0, vmax=0.0)
+            fig.colorbar(mesh, ax=axs, label="amplitude (dB re maximum)")
+            fm = frame_average(t, reg.mesh_frequency, ft + t[0], window_s)
+            for i, k in enumerate(orders):
+                axs.plot(
+                    ft + t[0], k * fm, "w--", lw=0.8, label="k Z_r f_c (frame means)" if i == 0 else None
+                )
+                axs.annotate(
+                    f"k = {k}",
+                    (ft[0] + t[0], k * fm[0]),
+                    xytext=(3, 3),
+                    textcoords="offset points",
+                    color="w",
+                    fontsize=7,
+                )
+            axs.grid(False)
+            axs.set_xlim(ft[0] + t[0], ft[-1] + t[0])
+            axs.set_xlabel("time (s), frame centres")
             axs.set_ylabel("frequency (Hz)")
-            axs.set_title(f"STFT {label.replace('_', ' ')} (dB); dashed: k Z_r f_c, k = {orders}")
+            axs.set_title(
+                f"{regime}: STFT of the {what}, {window_s * 1e3:.0f} ms Hann window; dashed: k Z_r f_c"
+            )
             out.append(plots.save(fig, outdir / f"{reg.name}_stft_{label}.png"))
     return out

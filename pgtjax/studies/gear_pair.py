@@ -12,7 +12,6 @@ Time step: the thesis's 0.01 s does not resolve the mesh mode (5.9 kHz with Tabl
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,15 +21,32 @@ import numpy as np
 
 from .. import plots
 from .._contact import as_criterion
-from .._files import write_text
 from .._linearization import solve_moments
 from .._modal import modal_analysis
 from .._montecarlo import check_options as check_monte_carlo_options
 from .._montecarlo import monte_carlo
 from .._results import MomentResult, MonteCarloResult, save_results
+from .._summary import write_summary
 from ..models import gear_pair as gp
 
 QUANTITIES = (("y1", "m"), ("y2", "m"), ("z", "m"), ("delta", "m"))
+
+#: the files :func:`write_outputs` writes (fnmatch pattern -> one line), for the output folder's README.txt
+FILE_INDEX = {
+    "*_sl_force.npz": "SL (stochastic linearisation, force criterion) mean and std of y1, y2, z and the mesh "
+    "deflection delta over time, one regime (pgtjax.load_results)",
+    "*_sl_energy.npz": "SL (energy criterion) moments of one regime, as the force-criterion file",
+    "*_mc.npz": "Monte Carlo moments, contact-loss probability and delta histograms of one regime",
+    "*_moments.png": "mean and std of y1, y2, z, delta over time, SL lines against MC markers with 95 % "
+    "error bars (thesis Sec. 4.6.2-4.6.4, Figs. 4.2-4.13)",
+    "*_pdf_t*ms.png": "PDF of the mesh deflection at the time in the name: MC histogram against the SL "
+    "Gaussians, backlash zone shaded (thesis ch. 4 PDF figures)",
+}
+#: one line on where and why SL departs from MC (shown under the figures and after the CLI's error table)
+IMPACT_NOTE = (
+    "contact is lost, so delta is not Gaussian and the SL Gaussian closure departs from MC (expected: "
+    "see the PDF figure)"
+)
 
 
 @dataclass
@@ -251,6 +267,107 @@ def ks_distance(reg: RegimeResult, criterion: str = "force", time_index: int = 0
     return dict(ks=float(np.max(np.abs(cdf_mc - cdf_sl))), critical_5pct=1.36 / np.sqrt(reg.mc.n_samples))
 
 
+def _visible_ylim(ax, t, values, skip_fraction: float = 0.05, include_zero: bool = False) -> None:
+    """y-limits from the values after the first ``skip_fraction`` of the time axis (the std's initial zero and
+    the start-up transient do not squeeze the axis); 8 % margins."""
+    t = np.asarray(t)
+    late = t >= t[0] + skip_fraction * (t[-1] - t[0])
+    v = np.concatenate([np.asarray(x)[late] for x in values])
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return
+    lo, hi = float(v.min()), float(v.max())
+    if include_zero:
+        lo = min(lo, 0.0)
+    pad = 0.08 * (hi - lo) if hi > lo else 0.05 * max(abs(hi), 1e-30)
+    ax.set_ylim(lo - pad, hi + pad)
+
+
+def moments_figure(reg: RegimeResult, title: str, subtitle: str = ""):
+    """Mean (top) and std (bottom) of y1, y2, z, delta in µm over time (ms): SL criteria as lines drawn above
+    the MC markers, whose bars are 95 % confidence intervals (1.96 standard errors of the mean and of the
+    std, :meth:`MonteCarloResult.standard_error`). The std axes ignore the first 5 % of the run (where the
+    std grows from zero). The legend sits under the axes, outside the data."""
+    import matplotlib as mpl
+    from matplotlib.figure import Figure
+
+    times = np.asarray(next(iter(reg.sl.values())).times)
+    with mpl.rc_context(plots.STYLE):
+        fig = Figure(
+            figsize=(2.6 * len(QUANTITIES) + 0.6, 4.9 + (0.25 if subtitle else 0.0)), layout="constrained"
+        )
+        axes = fig.subplots(2, len(QUANTITIES), squeeze=False, sharex=True)
+        for j, (name, unit) in enumerate(QUANTITIES):
+            factor, shown = plots.scaled(unit)
+            series = []
+            if reg.mc is not None:
+                se_m, se_s = reg.mc.standard_error("delta" if name == "delta" else "u")
+                col = 0 if name == "delta" else reg.mc.dof(name)
+                m, s = _series(reg.mc, name)
+                tm = np.asarray(reg.mc.times) * 1e3
+                for row, (val, se) in enumerate(((m, se_m), (s, se_s))):
+                    axes[row, j].errorbar(
+                        tm,
+                        val * factor,
+                        yerr=1.96 * np.asarray(se[:, col]) * factor,
+                        fmt="o",
+                        ms=2.2,
+                        color="0.25",
+                        ecolor="0.6",
+                        elinewidth=0.6,
+                        capsize=0,
+                        zorder=2,
+                        label=f"MC ({reg.mc.n_samples} samples), 95 % CI" if j == 0 and row == 0 else None,
+                    )
+                bars = 1.96 * np.asarray(se_s[:, col])
+                series += [(m * factor, (s - bars) * factor), (m * factor, (s + bars) * factor)]
+            for label, sl in reg.sl.items():
+                m, s = _series(sl, name)
+                style = {k: v for k, v in plots.LINESTYLES.get(f"SL {label}", {}).items()}
+                for row, val in enumerate((m, s)):
+                    axes[row, j].plot(
+                        times * 1e3,
+                        val * factor,
+                        zorder=3,
+                        lw=1.4,
+                        label=f"SL {label}" if j == 0 and row == 0 else None,
+                        **style,
+                    )
+                series.append((m * factor, s * factor))
+            axes[0, j].set_title(name)
+            axes[0, j].set_ylabel(f"mean ({shown})")
+            axes[1, j].set_ylabel(f"std ({shown})")
+            axes[1, j].set_xlabel("time (ms)")
+            _visible_ylim(axes[1, j], times, [s for _, s in series])
+            for ax in axes[:, j]:
+                ax.ticklabel_format(axis="y", useOffset=False)
+        handles, labels = axes[0, 0].get_legend_handles_labels()
+        head = title + (f"\n{subtitle}" if subtitle else "")
+        fig.suptitle(head, fontsize=9)
+        fig.legend(handles, labels, loc="outside lower center", ncol=len(labels), frameon=False)
+    return fig
+
+
+def _tidy_pdf_axes(fig, edges, counts, gaussians: dict) -> None:
+    """Crop the PDF figure's x-axis to where the histogram or a Gaussian is visible, and put the legend in
+    the emptier upper corner (the side away from the histogram's mass)."""
+    factor, _ = plots.scaled("m")
+    ax = fig.axes[0]
+    edges = np.asarray(edges) * factor
+    counts = np.asarray(counts)
+    nz = np.flatnonzero(counts > 0)
+    lo, hi = (edges[nz[0]], edges[nz[-1] + 1]) if nz.size else (edges[0], edges[-1])
+    for mu, sd in gaussians.values():
+        lo, hi = min(lo, (mu - 4 * sd) * factor), max(hi, (mu + 4 * sd) * factor)
+    pad = 0.05 * (hi - lo)
+    ax.set_xlim(max(lo - pad, edges[0]), min(hi + pad, edges[-1]))
+    centres = 0.5 * (edges[1:] + edges[:-1])
+    mid = 0.5 * sum(ax.get_xlim())
+    left_mass = counts[centres < mid].sum()
+    ax.set_ylim(0.0, ax.get_ylim()[1] * 1.35)  # headroom for the legend
+    ax.legend(loc="upper right" if left_mass > 0.5 * counts.sum() else "upper left", fontsize=7)
+
+
 def write_outputs(study: GearPairStudy, outdir) -> list[Path]:
     """Save labelled results (``.npz``), the error table (JSON) and PNG figures into ``outdir``."""
     outdir = Path(outdir)
@@ -260,18 +377,13 @@ def write_outputs(study: GearPairStudy, outdir) -> list[Path]:
         attrs = dict(regime=reg.name, torque_in_Nm=reg.torque_in, torque_out_Nm=reg.torque_out, dt_s=study.dt)
         for crit, sl in reg.sl.items():
             written.append(save_results(outdir / f"{reg.name}_sl_{crit}.npz", sl, **attrs))
-        curves = {f"SL {c}": {q: _series(sl, q) for q, _ in QUANTITIES} for c, sl in reg.sl.items()}
         if reg.mc is not None:
             written.append(save_results(outdir / f"{reg.name}_mc.npz", reg.mc, **attrs))
-            curves = {"MC": {q: _series(reg.mc, q) for q, _ in QUANTITIES}, **curves}
+        title = f"{reg.name.replace('_', ' ')}: T_in = {reg.torque_in:g} N m, T_out = {reg.torque_out:g} N m"
+        p_mc = None if reg.mc is None else float(reg.mc.contact_loss_probability[-1, 0])
+        subtitle = f"P_loss MC = {p_mc:.2f}: {IMPACT_NOTE}" if p_mc is not None and p_mc > 0.05 else ""
+        written.append(plots.save(moments_figure(reg, title, subtitle), outdir / f"{reg.name}_moments.png"))
         times = np.asarray(next(iter(reg.sl.values())).times)
-        title = f"{reg.name.replace('_', ' ')}: T_in = {reg.torque_in:g} N m"
-        written.append(
-            plots.save(
-                plots.mean_std_figure(times, curves, list(QUANTITIES), title),
-                outdir / f"{reg.name}_moments.png",
-            )
-        )
         if reg.mc is not None and reg.mc.histograms:
             for i, t in enumerate(np.asarray(reg.mc.histogram_times)):
                 k = int(np.argmin(np.abs(times - t)))
@@ -285,28 +397,79 @@ def write_outputs(study: GearPairStudy, outdir) -> list[Path]:
                     reg.mc.n_samples,
                     gauss,
                     clearance=reg.clearance,
-                    title=f"{reg.name.replace('_', ' ')}, t = {t * 1e3:.1f} ms",
+                    title=f"{reg.name.replace('_', ' ')}: mesh deflection at t = {t * 1e3:.1f} ms "
+                    f"(MC {reg.mc.n_samples} samples)",
+                )
+                _tidy_pdf_axes(
+                    fig, reg.mc.histogram_edges["delta:mesh"], reg.mc.histograms["delta:mesh"][i], gauss
                 )
                 written.append(plots.save(fig, outdir / f"{reg.name}_pdf_t{t * 1e3:.0f}ms.png"))
-    summary = dict(
-        dt_s=study.dt,
-        t_end_s=study.t_end,
-        n_samples=study.n_samples,
-        settings=study.settings,
-        errors=error_table(study),
-        histogram_shape={
-            r.name: histogram_shape(r) for r in study.regimes if r.mc is not None and r.mc.histograms
-        },
-        ks_against_sl={
-            r.name: {c: ks_distance(r, c) for c in r.sl}
-            for r in study.regimes
-            if r.mc is not None and r.mc.histograms
-        },
-    )
-    path = outdir / "summary.json"
-    write_text(path, json.dumps(summary, indent=2))
+    path = write_summary(outdir / "summary.json", summary_dict(study))
     written.append(path)
     return written
+
+
+def _error_row_units(row: dict) -> dict:
+    """An :func:`error_table` row with its unit in every key (summary.json)."""
+    out = {}
+    for key, value in row.items():
+        if key == "torque_in":
+            key = "torque_in_Nm"
+        elif key.endswith("_error"):
+            key += "_ratio"
+        elif key.startswith("contact_loss_"):
+            key += "_probability"
+        out[key] = value
+    return out
+
+
+def summary_dict(study: GearPairStudy) -> dict:
+    """The content of ``summary.json`` (every number with its unit, :mod:`pgtjax._summary`)."""
+    with_hist = [r for r in study.regimes if r.mc is not None and r.mc.histograms]
+    plotted = [float(t) for t in np.asarray(with_hist[0].mc.histogram_times)] if with_hist else []
+    settings = dict(study.settings)
+    return dict(
+        dt_s=study.dt,
+        t_end_s=study.t_end,
+        n_samples_count=study.n_samples,
+        settings=dict(
+            criteria=settings.get("criteria"),
+            n_saves_count=settings.get("n_saves"),
+            pdf_times_requested_s=settings.get("pdf_times"),
+            pdf_times_plotted_s=plotted,
+            pdf_times_note="the PDFs are those of the saved times nearest to the requested ones "
+            "(pdf_times_plotted_s, the times in the PDF figures' titles and file names)",
+        ),
+        errors=dict(
+            definition="mean over the times after the first quarter of the run of |SL - MC| divided by the "
+            "mean of |MC| (mean) or of MC (std); contact-loss probabilities at the last saved time",
+            rows=[_error_row_units(r) for r in error_table(study)],
+        ),
+        histogram_shape={
+            r.name: dict(
+                unit="1 (skewness, excess kurtosis: dimensionless; fraction_inside_edges: fraction)",
+                **histogram_shape(r),
+            )
+            for r in with_hist
+        },
+        ks_against_sl={
+            r.name: {
+                c: dict(unit="1 (Kolmogorov-Smirnov distance between CDFs, probability)", **ks_distance(r, c))
+                for c in r.sl
+            }
+            for r in with_hist
+        },
+    )
+
+
+def format_impact_notes(rows: list[dict]) -> str:
+    """One line per regime where MC loses contact: why SL departs from MC there (after the error table)."""
+    lines = []
+    for name in dict.fromkeys(r["regime"] for r in rows):
+        p_mc = next(r["contact_loss_mc"] for r in rows if r["regime"] == name)
+        if p_mc > 0.05:
+            lines.append(f"{name}: P_loss MC = {p_mc:.2f}: {IMPACT_NOTE}")
+    return "\n".join(lines)
 
 
 def format_error_table(rows: list[dict]) -> str:

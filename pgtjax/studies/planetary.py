@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import json
 from pathlib import Path
 
 import equinox as eqx
@@ -26,12 +25,12 @@ import numpy as np
 from .. import plots
 from .._contact import as_criterion
 from .._deterministic import static_equilibrium
-from .._files import write_text
 from .._linearization import solve_moments
 from .._modal import modal_analysis
 from .._montecarlo import check_options as check_monte_carlo_options
 from .._montecarlo import monte_carlo
 from .._results import MomentResult, MonteCarloResult, save_results
+from .._summary import write_summary
 from .._system import Observables, check_count
 from ..models import planetary as pm
 from ..models.ring import ring_interpolation, ring_nodal_inverse
@@ -138,8 +137,8 @@ def run_study(
     n_samples=500,
     dt=0.0027,
     periods=1.0,
-    n_saves=200,
-    sl_refine=10,
+    n_saves=2000,
+    sl_refine=1,
     criteria=("force",),
     key=None,
     chunk_size=5000,
@@ -187,6 +186,7 @@ def run_study(
         n_samples=n_samples,
         periods=periods,
         n_steps=kw["n_steps"],
+        t_end_s=kw["n_steps"] * dt,
         criteria=list(criteria),
         mc_save_every=mc_every,
         sl_save_every=sl_every,
@@ -196,7 +196,7 @@ def run_study(
 
 
 def parameter_sweep(
-    params, variants: dict, *, dt=0.0027, periods=1.0, n_saves=200, sl_refine=10
+    params, variants: dict, *, dt=0.0027, periods=1.0, n_saves=2000, sl_refine=1
 ) -> dict[str, MomentResult]:
     """SL + recursion for each ``{label: PlanetaryParams}`` (rim thickness, supports...), saved as
     :func:`run_study` saves SL."""
@@ -292,6 +292,9 @@ def sensitivities(
     fd = jnp.stack([(4.0 * central(i, h) - central(i, 2.0 * h)) / 3.0 for i, h in enumerate(steps)], axis=1)
     t_end = f"{n_steps * dt:.3f} s"
     return dict(
+        time_s=n_steps * dt,
+        quantity_units=["m", "N"],
+        parameter_units=["m", "N/m"],
         quantities=[
             f"std of ring_node{node}_radial at t = {t_end} (m)",
             f"std of the {mesh} meshing force at t = {t_end} (N)",
@@ -385,6 +388,14 @@ def error_summary(study: PlanetaryStudy, criterion: str | None = None) -> dict:
     dofs = extremes(z_mean, z_std, sl.dof_names, compared)
     forces = extremes(f_mean, f_std, sl.contact_names, list(range(len(sl.contact_names))))
     return dict(
+        unit="Monte Carlo standard errors",
+        units=dict(
+            n_samples="1 (count)",
+            dofs_compared="1 (count)",
+            fraction_of_dof_time_points_within_3_se="1 (fraction)",
+            fraction_of_mesh_time_points_within_3_se="1 (fraction)",
+            contact_loss_probability_max="1 (probability)",
+        ),
         criterion=sl.criterion,
         n_samples=mc.n_samples,
         dofs_compared=len(compared),
@@ -421,33 +432,71 @@ def load_params(
     return pm.load_params(path, **overrides) if path is not None else pm.default_params(**overrides)
 
 
-def format_header(params: pm.PlanetaryParams, *, periods: float, dt: float, criteria, n_samples: int) -> str:
-    """One line describing a :func:`run_study` call (the CLI's first line)."""
+def format_header(
+    params: pm.PlanetaryParams,
+    *,
+    periods: float,
+    dt: float,
+    criteria,
+    n_samples: int,
+    n_saves=2000,
+    sl_refine=1,
+) -> str:
+    """One line describing a :func:`run_study` call (the CLI's first line): the simulated time as run (a whole
+    number of save intervals, so slightly short of ``periods`` carrier periods)."""
+    n_steps, mc_every, _ = _grid(params, dt, periods, n_saves, sl_refine)
+    t_end = n_steps * dt
     return (
-        f"pgtjax planetary gear train (thesis ch. 3): {params.ring_model} ring, "
-        f"{params.n_planets} planets, {periods:g} carrier period(s) of {carrier_period(params):.2f} s "
-        f"at dt = {dt:g} s, "
-        f"SL {', '.join(criteria)}, MC {n_samples} samples"
+        f"pgtjax planetary gear train (thesis ch. 3): {params.ring_model} ring, {params.n_planets} planets; "
+        f"{n_steps} steps of {dt:g} s = {t_end:.2f} s ({t_end / carrier_period(params):.3f} carrier periods of "
+        f"{carrier_period(params):.2f} s); SL {', '.join(criteria)}, "
+        + (f"MC {n_samples} samples saved every {mc_every} steps" if n_samples else "no MC")
     )
 
 
+def check_support_counts(params: pm.PlanetaryParams, counts) -> tuple[int, ...]:
+    """``counts`` (each a whole number >= 2 dividing the ring elements), or by default those of 3, 6, 9 that
+    divide them; a ``ValueError`` names the others."""
+    n_elements = params.ring.n_elements
+    if counts is None:
+        return tuple(c for c in (3, 6, 9) if n_elements % c == 0)
+    bad = [c for c in counts if not isinstance(c, int) or c < 2 or n_elements % c]
+    if bad:
+        raise ValueError(
+            f"`support_counts` must be whole numbers >= 2 dividing the {n_elements} ring elements; {bad} are not"
+        )
+    return tuple(counts)
+
+
 def standard_sweeps(
-    params: pm.PlanetaryParams, *, dt=0.0027, periods=1.0, n_saves=200, sl_refine=10, say=None
+    params: pm.PlanetaryParams,
+    *,
+    dt=0.0027,
+    periods=1.0,
+    n_saves=2000,
+    sl_refine=1,
+    thicknesses=(0.087, 0.128, 0.168),
+    support_counts=None,
+    say=None,
 ) -> dict | None:
-    """The SL sweeps of the thesis (rim thickness 87 / 128 / 168 mm, Figs. 3.12-3.15; 3, 6 or 9 bolt supports,
-    those dividing the number of ring elements), ``{title: {label: MomentResult}}`` for
-    :func:`write_outputs`; ``None`` for a rigid ring. ``say(message)`` is called before each sweep."""
+    """The SL sweeps of the thesis (rim thickness ``thicknesses`` in m, default 87 / 128 / 168 mm as in Figs.
+    3.12-3.15; ``support_counts`` equally spaced bolts, each dividing the number of ring elements; default:
+    those of 3, 6, 9 that do), ``{title: {label: MomentResult}}`` for :func:`write_outputs`; ``None`` for a rigid ring.
+    ``say(message)`` is called before each sweep."""
     if params.ring_model != "elastic":
         return None
     say = say or (lambda msg: None)
-    say("rim thickness 87 / 128 / 168 mm (SL)")
     kw = dict(dt=dt, periods=periods, n_saves=n_saves, sl_refine=sl_refine)
-    sweeps = {
-        "Rim thickness: thesis Figs. 3.12-3.15": parameter_sweep(params, rim_thickness_variants(params), **kw)
-    }
-    counts = tuple(c for c in (3, 6, 9) if params.ring.n_elements % c == 0)
-    say(f"bolt supports {counts} (SL)")
-    sweeps["Supports: number of bolts"] = parameter_sweep(params, support_variants(params, counts), **kw)
+    sweeps = {}
+    if thicknesses:
+        say(f"rim thickness {' / '.join(f'{h * 1e3:g}' for h in thicknesses)} mm (SL)")
+        variants = rim_thickness_variants(params, thicknesses)
+        sweeps["Rim thickness: thesis Figs. 3.12-3.15"] = parameter_sweep(params, variants, **kw)
+    support_counts = check_support_counts(params, support_counts)
+    if support_counts:
+        say(f"bolt supports {' / '.join(map(str, support_counts))} (SL)")
+        variants = support_variants(params, tuple(support_counts))
+        sweeps["Supports: number of bolts"] = parameter_sweep(params, variants, **kw)
     return sweeps
 
 
@@ -511,7 +560,7 @@ APPENDIX_DOFS = (
     ("ring_x", "m"),
     ("ring_u", "m"),
 )
-MC_MARKERS = dict(color="k", ls="none", marker="o", ms=2.0)  # MC is saved more sparsely than SL
+MC_MARKERS = dict(color="k", ls="none", marker="o", ms=2.0, mfc="white", mew=0.6)  # hollow: SL shows through
 
 
 def _present(quantities, result) -> list[tuple[str, str]]:
@@ -519,14 +568,28 @@ def _present(quantities, result) -> list[tuple[str, str]]:
     return [q for q in quantities if q[0] in result.dof_names]
 
 
+_STANDARD_ERROR_KIND = {"_dof_series": "u", "_obs_series": "obs", "_force_series": "force"}
+
+
 def _sl_mc_curves(study: PlanetaryStudy, series, names, with_mc=True) -> tuple[dict, dict]:
-    """(times, curves) of every SL criterion (dense) and of MC (its own saved times), for plots."""
+    """(times, curves) of every SL criterion and of MC, for plots; MC's curves carry their standard errors
+    (4-tuples, :func:`pgtjax.plots.mean_std_figure`)."""
     times, curves = {}, {}
     for c, r in study.sl.items():
         times[f"SL {c}"], curves[f"SL {c}"] = np.asarray(r.times), {n: series(r, n) for n in names}
     if with_mc and study.mc is not None:
-        times["MC"], curves["MC"] = np.asarray(study.mc.times), {n: series(study.mc, n) for n in names}
+        mc = study.mc
+        what = _STANDARD_ERROR_KIND[series.__name__]
+        se_mean, se_std = (np.asarray(a) for a in mc.standard_error(what))
+        index = {"u": mc.dof, "obs": mc.observable, "force": mc.contact}[what]
+        times["MC"] = np.asarray(mc.times)
+        curves["MC"] = {n: (*series(mc, n), se_mean[:, index(n)], se_std[:, index(n)]) for n in names}
     return times, curves
+
+
+def mesh_period(study: PlanetaryStudy) -> float:
+    """The mesh period 2 pi / omega_m (s): long runs are drawn per mesh cycle."""
+    return 2.0 * np.pi / float(study.params.mesh.mesh_frequency)
 
 
 def dof_figure(
@@ -535,13 +598,21 @@ def dof_figure(
     title="Planetary gear train: SL vs MC (thesis Figs. 3.5-3.8)",
     subtitle="",
 ):
-    """Mean and std of DOFs: SL as lines, MC as markers at its saved times (None if no DOF is present)."""
+    """Mean and std of DOFs: SL as lines, MC as markers with 95 % error bars; a run of many mesh cycles per
+    mesh cycle (the range within each cycle as a band, cycle averages as the line and the markers). None if
+    no DOF is present."""
     quantities = _present(quantities, study.sl_result())
     if not quantities:
         return None
     times, curves = _sl_mc_curves(study, _dof_series, [n for n, _ in quantities])
     return plots.mean_std_figure(
-        times, curves, quantities, title=title, styles={"MC": MC_MARKERS}, subtitle=subtitle
+        times,
+        curves,
+        quantities,
+        title=title,
+        styles={"MC": MC_MARKERS},
+        subtitle=subtitle,
+        cycle=mesh_period(study),
     )
 
 
@@ -565,32 +636,33 @@ def contact_point_figure(study: PlanetaryStudy):
         [(n, "m") for n in names],
         styles={"MC": MC_MARKERS},
         title="Ring at the moving contact point of planet 1 (thesis Fig. 3.9)",
+        cycle=mesh_period(study),
     )
 
 
 def mesh_force_figure(study: PlanetaryStudy, meshes=("sun_planet1", "ring_planet1")):
-    """Mean and mean square of the equivalent meshing forces by SL over the whole run (Figs. 3.10-3.11).
-    MC is left out: saved a few times per mesh period at most, it would alias the meshing frequency into a
-    slow beat (:func:`mesh_force_zoom_figure` compares them)."""
-    times, curves = _sl_mc_curves(study, _force_series, list(meshes), with_mc=False)
-    dense = {label: {**plots.LINESTYLES.get(label, {}), "ls": "-", "lw": 0.5} for label in curves}
+    """Mean and mean square of the equivalent meshing forces over the whole run (Figs. 3.10-3.11): per mesh
+    cycle (its range as a band around the cycle average; the thesis's figures draw every cycle, which at
+    this width only shows a solid band), SL against MC's cycle averages."""
+    times, curves = _sl_mc_curves(study, _force_series, list(meshes))
     return plots.mean_std_figure(
         times,
         curves,
         [(n, "N") for n in meshes],
         second="mean square",
-        styles=dense,
-        title="Equivalent meshing forces, SL (thesis Figs. 3.10-3.11)",
+        styles={"MC": MC_MARKERS},
+        title="Equivalent meshing forces (thesis Figs. 3.10-3.11)",
+        cycle=mesh_period(study),
     )
 
 
 def mesh_force_zoom_figure(study: PlanetaryStudy, meshes=("sun_planet1", "ring_planet1"), mesh_periods=5.0):
     """The meshing forces over ``mesh_periods`` mesh periods (fewer if the run is shorter) at mid-run:
-    SL against MC's saved times."""
+    SL against MC at every saved time."""
     times, curves = _sl_mc_curves(study, _force_series, list(meshes))
     t_all = np.asarray(study.sl_result().times)
-    mesh_period = 2.0 * np.pi / float(study.params.mesh.mesh_frequency)
-    width = min(mesh_periods * mesh_period, float(t_all[-1] - t_all[0]))
+    period = mesh_period(study)
+    width = min(mesh_periods * period, float(t_all[-1] - t_all[0]))
     t0 = max(0.5 * (t_all[0] + t_all[-1]) - 0.5 * width, float(t_all[0]))
     for label in curves:
         keep = (times[label] >= t0) & (times[label] <= t0 + width)
@@ -602,16 +674,150 @@ def mesh_force_zoom_figure(study: PlanetaryStudy, meshes=("sun_planet1", "ring_p
         [(n, "N") for n in meshes],
         second="mean square",
         styles={"MC": MC_MARKERS},
-        title=f"Meshing forces over {width / mesh_period:.3g} mesh periods: SL vs MC",
+        title=f"Meshing forces over {width / period:.3g} mesh periods: SL vs MC",
     )
 
 
-def sweep_figure(results: dict[str, MomentResult], title: str, quantities=FIGURE_DOFS):
-    """SL of each variant of a parameter sweep (rim thickness, supports)."""
+def coinciding(results: dict[str, MomentResult], quantities, relative=1e-3) -> dict[str, float]:
+    """The quantities whose mean and std agree across every variant of a sweep to ``relative`` of their
+    range over time: ``{name: largest difference (SI unit)}``; their curves lie on top of each other."""
+    out = {}
+    for name, _ in quantities:
+        series = [np.stack(_dof_series(r, name)) for r in results.values()]
+        if len({a.shape for a in series}) != 1:
+            continue
+        stacked = np.stack(series)  # (variant, mean/std, time)
+        difference = float(np.max(np.ptp(stacked, axis=0)))
+        scale = float(np.max(np.ptp(stacked[0], axis=-1)))
+        if difference <= relative * max(scale, 1e-300):
+            out[name] = difference
+    return out
+
+
+def sweep_figure(results: dict[str, MomentResult], title: str, quantities=FIGURE_DOFS, cycle=None):
+    """SL of each variant of a parameter sweep (rim thickness, supports), per mesh cycle when ``cycle``
+    (s) is given; quantities that do not change across the variants are named in the subtitle."""
     quantities = _present(quantities, next(iter(results.values())))
     times = {label: np.asarray(r.times) for label, r in results.items()}
     curves = {label: {n: _dof_series(r, n) for n, _ in quantities} for label, r in results.items()}
-    return plots.mean_std_figure(times, curves, quantities, title=title)
+    same = coinciding(results, quantities)
+    subtitle = "; ".join(
+        f"{n}: the {len(results)} curves coincide (largest difference {d * 1e6:.2g} µm)"
+        for n, d in same.items()
+    )
+    return plots.mean_std_figure(times, curves, quantities, title=title, subtitle=subtitle, cycle=cycle)
+
+
+SETTING_UNITS = dict(
+    n_samples="1 (count)",
+    periods="carrier periods",
+    n_steps="1 (count of time steps)",
+    mc_save_every="time steps",
+    sl_save_every="time steps",
+    sl_refine="1 (SL saves per MC save)",
+)
+MODES_NOTE = (
+    "natural frequencies of the model linearized with every mesh closed at t = 0; the lowest, of type "
+    "'filter', is the first-order wind filter's state (its time constant as a frequency), not a structural mode"
+)
+SENSITIVITY_NOTE = (
+    "at the end of a short run (200 steps) from the stationary wind state: the instantaneous std there, not a "
+    "period average, so that the check by Richardson-extrapolated central differences (four more SL runs per "
+    "parameter) stays cheap; pgtjax.design differentiates period averages"
+)
+
+#: one line for every file a planetary run writes (README.txt of the output folder)
+FILE_INDEX = {
+    "planetary_sl_*.npz": "SL + moment recursion (one file per criterion): mean and std of every DOF, velocity, "
+    "mesh deflection and meshing force, and of the ring at planet 1's contact point; pgtjax.load_results",
+    "planetary_mc.npz": "Monte Carlo of the nonlinear system, saved at the same times as SL: the same "
+    "statistics with their standard errors; pgtjax.load_results",
+    "monte_carlo.checkpoint*.npz": "the Monte Carlo's running statistics, for --resume after an interruption",
+    "planetary_dofs.png": "thesis Figs. 3.5-3.8: mean and std of four DOFs, SL (lines, band = range within a "
+    "mesh cycle) against MC (cycle averages, 95 % error bars)",
+    "planetary_more_dofs.png": "thesis App. A: further DOFs; those at round-off level (zero by symmetry) are "
+    "named, not drawn",
+    "planetary_ring_contact.png": "thesis Fig. 3.9: the ring at planet 1's moving contact point, SL against MC",
+    "planetary_mesh_forces.png": "thesis Figs. 3.10-3.11: mean and mean square of the sun-planet 1 and "
+    "ring-planet 1 meshing forces over the run, per mesh cycle, SL against MC",
+    "planetary_mesh_forces_zoom.png": "the meshing forces over 5 mesh periods at mid-run: SL against every MC "
+    "save, 95 % error bars",
+    "planetary_rim_thickness.png": "thesis Figs. 3.12-3.15: SL for each rim thickness (--rim-thicknesses)",
+    "planetary_supports.png": "SL for each number of equally spaced bolts (--support-counts)",
+}
+
+
+def _sweep_summary(results: dict[str, MomentResult]) -> dict:
+    """Per variant and figure DOF: the extremes and time averages of the mean and std over the run (the
+    response is periodic: one instant would say little)."""
+    first = next(iter(results.values()))
+    names = [n for n, _ in _present(FIGURE_DOFS, first)]
+    variants = {}
+    for label, r in results.items():
+        variants[label] = {}
+        for n in names:
+            mean, std = _dof_series(r, n)
+            variants[label][n] = dict(
+                unit=str(r.dof_units[r.dof(n)]),
+                time_average_of_mean=float(np.mean(mean[1:])),
+                min_mean=float(np.min(mean[1:])),
+                max_mean=float(np.max(mean[1:])),
+                time_average_of_std=float(np.mean(std[1:])),
+                max_std=float(np.max(std)),
+            )
+    out = {"variants": variants}
+    same = coinciding(results, _present(FIGURE_DOFS, first))
+    if same:
+        out["unchanged_across_variants"] = {
+            "unit": "m",
+            "note": "largest difference between the variants' mean and std curves",
+            **same,
+        }
+    return out
+
+
+def _sensitivity_summary(sens: dict) -> dict:
+    """:func:`sensitivities` with a unit on every number."""
+    entries = []
+    for i, quantity in enumerate(sens["quantities"]):
+        q_unit = sens["quantity_units"][i]
+        derivatives = [
+            dict(
+                parameter=parameter,
+                unit=f"{q_unit}/({sens['parameter_units'][j]})",
+                autodiff=sens["gradient"][i][j],
+                extrapolated_central_difference=sens["central_difference"][i][j],
+                elasticity_ratio=sens["elasticity"][i][j],
+            )
+            for j, parameter in enumerate(sens["parameters"])
+        ]
+        entries.append(
+            dict(quantity=quantity, value=dict(unit=q_unit, value=sens["value"][i]), derivatives=derivatives)
+        )
+    return dict(time_s=sens["time_s"], note=SENSITIVITY_NOTE, quantities=entries)
+
+
+def summary(study: PlanetaryStudy, *, sweeps=None, modal=None, sens=None) -> dict:
+    """What ``summary.json`` holds, every number with its unit (:mod:`pgtjax._summary`)."""
+    out = dict(
+        dt_s=study.dt,
+        carrier_period_s=study.carrier_period,
+        mesh_period_s=mesh_period(study),
+        settings=dict(study.settings, units=SETTING_UNITS),
+        sl_vs_mc={c: error_summary(study, c) for c in study.sl} if study.mc is not None else None,
+        roundoff_dofs=roundoff_dofs(study.sl_result()),
+    )
+    for title, results in (sweeps or {}).items():
+        out[title.split(":")[0].lower().replace(" ", "_")] = _sweep_summary(results)
+    if modal is not None:
+        out["modes"] = dict(
+            note=MODES_NOTE,
+            units=dict(mode="1 (index, lowest frequency first)"),
+            table=[dict(r, frequency_hz=float(f"{r['frequency_hz']:.6g}")) for r in modal],
+        )
+    if sens is not None:
+        out["sensitivities"] = _sensitivity_summary(sens)
+    return out
 
 
 def write_outputs(
@@ -631,13 +837,6 @@ def write_outputs(
         written.append(save_results(outdir / f"planetary_sl_{crit}.npz", res, **attrs))
     if study.mc is not None:
         written.append(save_results(outdir / "planetary_mc.npz", study.mc, **attrs))
-    summary = dict(
-        dt_s=study.dt,
-        carrier_period_s=study.carrier_period,
-        settings=study.settings,
-        sl_vs_mc={c: error_summary(study, c) for c in study.sl} if study.mc is not None else None,
-        roundoff_dofs=roundoff_dofs(study.sl_result()),
-    )
     figures = [
         ("planetary_dofs", lambda: dof_figure(study)),
         ("planetary_more_dofs", lambda: appendix_figure(study)),
@@ -648,26 +847,13 @@ def write_outputs(
         figures.append(("planetary_mesh_forces_zoom", lambda: mesh_force_zoom_figure(study)))
     for title, results in (sweeps or {}).items():
         slug = title.split(":")[0].lower().replace(" ", "_")
-        figures.append((f"planetary_{slug}", functools.partial(sweep_figure, results, title)))
-        names = [n for n, _ in _present(FIGURE_DOFS, next(iter(results.values())))]
-        summary[slug] = {
-            label: {
-                n: dict(
-                    max_std=float(np.max(_dof_series(r, n)[1])), mean_at_end=float(_dof_series(r, n)[0][-1])
-                )
-                for n in names
-            }
-            for label, r in results.items()
-        }
+        build = functools.partial(sweep_figure, results, title, cycle=mesh_period(study))
+        figures.append((f"planetary_{slug}", build))
     for name, build in figures:  # each figure is saved (and closed) as soon as it is drawn
         fig = build()
         if fig is not None:
             written.append(plots.save(fig, outdir / f"{name}.png"))
-    if modal is not None:
-        summary["modes"] = modal
-    if sens is not None:
-        summary["sensitivities"] = sens
-    path = outdir / "summary.json"
-    write_text(path, json.dumps(summary, indent=2))
-    written.append(path)
+    written.append(
+        write_summary(outdir / "summary.json", summary(study, sweeps=sweeps, modal=modal, sens=sens))
+    )
     return written
