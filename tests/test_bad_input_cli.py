@@ -72,6 +72,9 @@ CASES = [
         lambda d: ["ring-moving-load", "--supports", "4", "--out", str(d / "o")],
         "--supports",
     ),  # fmt: skip
+    ("support counts not dividing", lambda d: ["run", "--support-counts", "4,6"], "--support-counts"),
+    ("support counts zero", lambda d: ["run", "--support-counts", "0"], "--support-counts"),
+    ("rim thicknesses negative", lambda d: ["run", "--rim-thicknesses", "-0.1"], "--rim-thicknesses"),
     ("ring revolutions negative", lambda d: ["ring-moving-load", "--revolutions", "-1"], "--revolutions"),
     ("params missing", lambda d: ["gear-pair", "--params", str(d / "nope.toml")], "nope.toml"),
     ("params a folder", lambda d: ["gear-pair-modal", "--params", str(d)], "is a folder"),

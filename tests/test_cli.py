@@ -49,14 +49,17 @@ def test_main_job_on_its_default_output_folder_in_a_fresh_folder(tmp_path, monke
 
 def test_parameters_toml_reproduces_the_run_and_set_overrides_name_their_key(tmp_path, capsys):
     """A run with --set writes parameters.toml (every entry, the override applied); a second run from that file
-    alone gives the same summary.json and results (tiny sizes); a misspelt --set key is named."""
+    alone gives the same summary.json and results (tiny sizes, Monte Carlo and sweeps included); every number
+    in summary.json carries a unit; README.txt lists every file; a misspelt --set key is named."""
     import json
 
     import numpy as np
 
     import pgtjax as pg
 
-    small = ["--samples", "0", "--periods", "0.01", "--no-sweeps", "--no-sensitivities", "--quiet"]
+    from pgtjax._summary import missing_units
+
+    small = ["--samples", "20", "--periods", "0.01", "--no-sensitivities", "--quiet"]
     first, second = tmp_path / "first", tmp_path / "second"
     assert main(["run", *small, "--set", "ring.rim_thickness=0.1", "--out", str(first)]) == 0
     written = (first / "parameters.toml").read_text()
@@ -65,6 +68,11 @@ def test_parameters_toml_reproduces_the_run_and_set_overrides_name_their_key(tmp
     assert (second / "parameters.toml").read_text() == written.replace(str(first), str(second))
     summary = [json.loads((d / "summary.json").read_text()) for d in (first, second)]
     assert summary[0] == summary[1]
+    assert missing_units(summary[0]) == [], "every number in summary.json carries a unit"
+    assert {"sl_vs_mc", "rim_thickness", "supports", "modes"} <= set(summary[0])
+    index = (first / "README.txt").read_text()  # one line for every file of the folder
+    assert "(no description)" not in index
+    assert all(f.name in index for f in first.iterdir() if f.is_file())
     a, _ = pg.load_results(first / "planetary_sl_force.npz")
     b, _ = pg.load_results(second / "planetary_sl_force.npz")
     np.testing.assert_array_equal(np.asarray(a.std_u), np.asarray(b.std_u))

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from pgtjax import params as embedded
+from pgtjax._summary import missing_units
 from pgtjax.cli import main
 from pgtjax.models import planetary as pm
 from pgtjax.studies import design as study
@@ -56,7 +57,11 @@ def test_optimize_writes_its_outputs_and_resumes(tmp_path, capsys, monkeypatch):
     ):
         assert (out / name).is_file(), name
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["objective"]["unit"] == "m" and summary["units"]["cost"] == ["N/m"]
+    assert missing_units(summary) == []  # every number carries its unit
+    index = (out / "README.txt").read_text()
+    assert "(no description)" not in index
+    assert all(f.name in index for f in out.iterdir() if f.is_file()), index
+    assert summary["objective"]["unit"] == "m" and summary["units"]["cost_units"] == ["N/m"]
     check = summary["monte_carlo"]["designs"]["optimum"]
     assert np.isfinite(check["improvement_in_se"])
     np.testing.assert_allclose(check["improvement_in_se"], check["improvement"] / check["improvement_se"])

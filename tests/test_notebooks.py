@@ -5,6 +5,10 @@ The kernel must draw with ipykernel's own default, the inline backend: CI export
 a kernel that inherits it renders nothing, which would hide exactly the bug this test guards against
 (library code that forces a non-interactive backend, so that a notebook shows no figure). So ``MPLBACKEND``
 is removed from the kernel's environment.
+
+The notebooks are committed *with* their outputs, executed at their default size (the environment variables
+unset), so that a reader sees the figures without running anything; ``test_committed_outputs`` checks, without
+executing anything, that every committed notebook still holds them.
 """
 
 from pathlib import Path
@@ -19,6 +23,8 @@ SMALL = {
     "PGTJAX_NOTEBOOK_T_END": "0.006",
     "PGTJAX_NOTEBOOK_PERIODS": "0.02",
     "PGTJAX_NOTEBOOK_OPT_STEPS": "3",
+    "PGTJAX_B2B_NOTEBOOK_T_END": "0.25",  # back_to_back: seconds of run-up (committed outputs: 1.5 s)
+    "PGTJAX_NOTEBOOK_RING_SMALL": "1",  # ring: 12 elements, short windows (committed outputs: 36 elements)
 }
 # Figures each notebook shows (the same at every size), one image output each.
 EXPECTED_FIGURES = {
@@ -68,3 +74,27 @@ def test_notebook_executes(path, monkeypatch):
     assert backend.strip() == "module://matplotlib_inline.backend_inline", backend
     stderr = "".join(o.get("text", "") for o in outputs if o.output_type == "stream" and o.name == "stderr")
     assert "IProgress not found" not in stderr
+
+
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])
+def test_committed_outputs(path):
+    """The committed notebook holds its executed outputs: every code cell run, in order, from one kernel; its
+    figures; no error, no warning, no progress-bar fallback message, no path of the machine that ran it."""
+    nb = nbformat.read(path, as_version=4)
+    code = [c for c in nb.cells if c.cell_type == "code"]
+    counts = [c.get("execution_count") for c in code]
+    assert all(isinstance(n, int) for n in counts), f"{path.name}: cells not executed: {counts}"
+    assert counts == list(range(1, len(code) + 1)), f"{path.name}: not executed in order: {counts}"
+    outputs = _outputs(nb)
+    errors = [o for o in outputs if o.output_type == "error"]
+    assert not errors, [f"{o.ename}: {o.evalue}" for o in errors]
+    assert image_count(nb) == EXPECTED_FIGURES[path.stem], f"{path.name}: {image_count(nb)} figures committed"
+    stderr = "".join(o.get("text", "") for o in outputs if o.output_type == "stream" and o.name == "stderr")
+    for word in ("Warning", "IProgress", "Traceback"):
+        assert word not in stderr, f"{path.name}: {word!r} in the committed stderr: {stderr[:500]}"
+    text = "".join(
+        o.get("text", "") + "".join(v for k, v in o.get("data", {}).items() if k.startswith("text/"))
+        for o in outputs
+    )
+    for local in ("/work/", "/tmp/", "/home/", "/root/"):
+        assert local not in text, f"{path.name}: a local path ({local}...) in the committed outputs"

@@ -438,6 +438,20 @@ def test_study_grids_outputs_and_symmetry_zero_dofs(tmp_path):
         "planetary_mc.npz",
         "summary.json",
     } <= written
+    # every number of summary.json carries its unit (a sweep, the modes and the sensitivities included)
+    from pgtjax._summary import missing_units
+
+    sens = study.sensitivities(p, n_steps=12, dt=result.dt)
+    full = study.summary(result, sweeps=sweeps, modal=study.modal_table(p), sens=sens)
+    assert missing_units(full) == [] and missing_units({**full, "bare": 1.0}) == ["bare"]
+    thin = full["rim_thickness"]["variants"]["t_r = 100 mm"]["ring_node2_tangential"]
+    assert thin["unit"] == "m" and thin["min_mean"] <= thin["time_average_of_mean"] <= thin["max_mean"]
+    derivative = full["sensitivities"]["quantities"][1]["derivatives"][1]
+    assert derivative["unit"] == "N/(N/m)" and derivative["parameter"] == "bolt radial stiffness (N/m)"
+    assert full["modes"]["table"][0]["type"] == "filter"  # the wind filter's state, named in the note
+    assert "wind filter" in full["modes"]["note"]
+    written_summary = json.loads((tmp_path / "summary.json").read_text())
+    assert missing_units(written_summary) == [] and written_summary["units_convention"].startswith("Every")
     back, attrs = pg.load_results(tmp_path / "planetary_sl_force.npz")
     assert back.dof_names == sl.dof_names and back.observable_names == sl.observable_names
     assert attrs["sl_refine"] == 3 and attrs["dt_s"] == result.dt
@@ -503,6 +517,35 @@ def test_rigid_ring_study_with_another_criterion_writes_its_outputs(tmp_path):
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert list(summary["sl_vs_mc"]) == ["energy"] and summary["sl_vs_mc"]["energy"]["criterion"] == "energy"
     assert "ring_u" in summary["sl_vs_mc"]["energy"]["per_dof_std"]
+
+
+def test_per_cycle_envelope_and_si_prefixes():
+    """The per-cycle drawing of long runs: a sine of period T on a slow ramp, sampled 20 times a cycle, gives
+    per cycle the ramp's average and the sine's extremes; the axis prefixes follow magnitudes."""
+    from pgtjax import plots
+
+    period, t = 0.25, np.arange(0, 5.0, 0.25 / 20)
+    y = 3.0 * t + 2.0 * np.sin(2 * np.pi * t / period)
+    tc, lo, hi, avg = plots.cycle_envelope(t, y, period)
+    assert len(tc) == 20
+    np.testing.assert_allclose(avg, 3.0 * tc, atol=1e-9)  # the sine averages out over whole cycles
+    # the extremes are the samples at a quarter and three quarters of each cycle: +-2 and the ramp between them
+    np.testing.assert_allclose(hi - lo, 4.0 - 3.0 * period / 2, rtol=1e-12)
+    assert plots.scaled("m", 1.9e-4) == (1e6, "µm") and plots.scaled("m", 0.017) == (1e3, "mm")
+    assert plots.scaled("rad", 3e-5) == (1e6, "µrad") and plots.scaled("N", 1.1e5) == (1e-3, "kN")
+    assert plots.scaled("Hz", 10.0) == (1.0, "Hz")
+
+
+def test_sweep_figure_names_curves_that_coincide():
+    """sun_u does not depend on the rim thickness (the sun's mean torque balance); the figure says so."""
+    from pgtjax.studies import planetary as study
+
+    p = small_params()
+    sweep = study.parameter_sweep(p, study.rim_thickness_variants(p, (0.1, 0.15)), periods=0.02, n_saves=4)
+    same = study.coinciding(sweep, study.FIGURE_DOFS)
+    assert "sun_u" in same and "ring_node2_tangential" not in same
+    fig = study.sweep_figure(sweep, "test")
+    assert "sun_u: the 2 curves coincide" in fig._suptitle.get_text()
 
 
 def test_nearly_constant_curve_is_drawn_flat():

@@ -62,6 +62,8 @@ def _run_optimize(args) -> int:
             + during
             + [write_parameters(folder, data, "planetary", args.command)]
         ),
+        index=study.FILE_INDEX,
+        title="pgtjax optimize: design optimization of the planetary train",
     )
     s = study.summary(result, spec)
     print(

@@ -18,7 +18,8 @@ import optax
 from .. import design as pd
 from .. import params as _params
 from .. import plots
-from .._files import write_json, write_text
+from .._files import write_text
+from .._summary import write_summary
 from .._system import check_count
 from ..models import planetary as pm
 
@@ -450,6 +451,7 @@ def summary(study: DesignStudy, spec: DesignSpec) -> dict:
     start, end = r.history[0], r.history[-1]
     units = {v["name"]: v["unit"] for v in desc["variables"]}
     opt = study.check["designs"]["optimum"]
+    response_unit = desc["objective"]["unit"]
     return dict(
         objective=dict(
             desc["objective"],
@@ -479,8 +481,42 @@ def summary(study: DesignStudy, spec: DesignSpec) -> dict:
         pareto_front=[{k: e[k] for k in ("weight", "response", "cost", "converged")} for e in study.front],
         horizon=desc["horizon"],
         timings_s=study.timings,
-        units=dict(response=desc["objective"]["unit"], cost=[c["unit"] for c in desc["costs"]], timings="s"),
+        # the unit of every number whose key or enclosing object does not name it (pgtjax._summary)
+        units=dict(
+            response=response_unit,
+            cost=desc["costs"][0]["unit"] if desc["costs"] else "1",
+            cost_units=[c["unit"] for c in desc["costs"]],
+            timings="s",
+            weight="1 (cost weight)",
+            relative_change="1 (ratio)",
+            relative_improvement="1 (ratio)",
+            iterations="1 (count)",
+            gradient_norm="1 (norm of the objective's gradient in the optimizer's variables z)",
+            sl=response_unit,
+            mc=response_unit,
+            mc_se=response_unit,
+            improvement=response_unit,
+            improvement_se=response_unit,
+            n_samples="1 (count)",
+            batches="1 (count)",
+            save_every="time steps",
+            n_steps="1 (count of time steps)",
+        ),
     )
+
+
+#: one line for every file ``pgtjax optimize`` writes (README.txt of the output folder)
+FILE_INDEX = {
+    "history.json": "every iteration: objective, its parts, gradient norm and design variables (--resume reads it)",
+    "history.json.state.npz": "the optimizer's state after the last iteration, for --resume",
+    "optimized_params.toml": "the parameter file at the optimum: pgtjax run --params optimized_params.toml",
+    "convergence.png": "objective and projected-gradient norm against the iteration",
+    "variables.png": "each design variable at the symmetric start and at the optimum, with its bounds",
+    "response.png": "the objective's quantities over the horizon at both designs: SL lines, MC markers with "
+    "error bars",
+    "pareto.png": "the Pareto front of response against cost, one optimization per cost weight, and the "
+    "symmetric design",
+}
 
 
 def write_outputs(study: DesignStudy, spec: DesignSpec, out, parameter_data: dict) -> list[Path]:
@@ -502,5 +538,5 @@ def write_outputs(study: DesignStudy, spec: DesignSpec, out, parameter_data: dic
         + " set to the optimum."
     )
     written.append(write_text(out / "optimized_params.toml", _params.dumps_toml(data, header)))
-    written.append(write_json(out / "summary.json", summary(study, spec)))
+    written.append(write_summary(out / "summary.json", summary(study, spec)))
     return written
