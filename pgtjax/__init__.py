@@ -26,6 +26,7 @@ from ._modal import modal_analysis as modal_analysis
 from ._modal import symmetric_eigen as symmetric_eigen
 from ._montecarlo import monte_carlo as monte_carlo
 from ._montecarlo import quantity_names as quantity_names
+from ._netcdf import to_xarray as to_xarray
 from ._newmark import (
     AbstractIntegrator as AbstractIntegrator,
 )

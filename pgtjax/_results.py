@@ -297,10 +297,11 @@ def _to_numpy_dict(result) -> tuple[dict, dict]:
 
 
 def save_results(path, result, **attributes) -> Path:
-    """Write a result (any class of this module) to ``path`` (``.npz``) with its labels and units;
-    ``attributes`` (JSON-serialisable: parameters, units of derived quantities...) are stored too."""
+    """Write a result (any class of this module) to ``path`` with its labels and units: ``.npz``, or a netCDF-4
+    file for a ``.nc`` path (:func:`pgtjax.to_xarray`'s Dataset; needs ``pgtjax[netcdf]``); ``attributes``
+    (JSON-serialisable: parameters, units of derived quantities...) are stored too."""
     path = _as_path(path)
-    if path.suffix != ".npz":  # numpy would append it; return the path that really exists
+    if path.suffix not in (".npz", ".nc"):  # numpy would append it; return the path that really exists
         path = path.with_name(path.name + ".npz")
     if not isinstance(result, tuple(_CLASSES.values())):
         raise ValueError(
@@ -322,9 +323,14 @@ def save_results(path, result, **attributes) -> Path:
     meta["attributes"] = attributes
     # a temporary name in the same folder, renamed into place: a run killed while writing leaves the
     # previous file (or none), never a truncated one under the final name
-    partial = path.with_name(f".{path.name}.partial-{os.getpid()}.npz")
+    partial = path.with_name(f".{path.name}.partial-{os.getpid()}{path.suffix}")
     try:
-        np.savez_compressed(partial, __meta__=np.array(json.dumps(meta)), **arrays)
+        if path.suffix == ".nc":
+            from ._netcdf import write_netcdf
+
+            write_netcdf(partial, result, attributes)
+        else:
+            np.savez_compressed(partial, __meta__=np.array(json.dumps(meta)), **arrays)
         os.replace(partial, path)
     finally:
         partial.unlink(missing_ok=True)
@@ -335,16 +341,21 @@ _CLASSES = {"MomentResult": MomentResult, "MonteCarloResult": MonteCarloResult, 
 
 
 def load_results(path):
-    """Inverse of :func:`save_results`: returns ``(result, attributes)``; ``ValueError`` naming the file for
-    anything that is not a readable pgtjax result."""
+    """Inverse of :func:`save_results` (``.npz`` or ``.nc``): returns ``(result, attributes)``; ``ValueError``
+    naming the file for anything that is not a readable pgtjax result."""
     require_x64("load_results")
     path = _as_path(path)
     if path.is_dir():
         raise ValueError(f"result file {str(path)!r} is a folder, not a .npz file written by save_results")
     try:
-        with np.load(path, allow_pickle=False) as data:
-            meta = json.loads(str(data["__meta__"]))
-            arrays = {k: data[k] for k in data.files if k != "__meta__"}
+        if path.suffix == ".nc":
+            from ._netcdf import read_netcdf
+
+            arrays, meta = read_netcdf(path)
+        else:
+            with np.load(path, allow_pickle=False) as data:
+                meta = json.loads(str(data["__meta__"]))
+                arrays = {k: data[k] for k in data.files if k != "__meta__"}
         cls = _CLASSES[meta.pop("class")]
     except FileNotFoundError:
         raise ValueError(f"result file {str(path)!r} does not exist") from None

@@ -56,7 +56,6 @@ def test_parameters_toml_reproduces_the_run_and_set_overrides_name_their_key(tmp
     import numpy as np
 
     import pgtjax as pg
-
     from pgtjax._summary import missing_units
 
     small = ["--samples", "20", "--periods", "0.01", "--no-sensitivities", "--quiet"]

@@ -196,12 +196,14 @@ def run_study(
 
 
 def parameter_sweep(
-    params, variants: dict, *, dt=0.0027, periods=1.0, n_saves=2000, sl_refine=1
+    params, variants: dict, *, dt=0.0027, periods=1.0, n_saves=2000, sl_refine=1, say=None
 ) -> dict[str, MomentResult]:
     """SL + recursion for each ``{label: PlanetaryParams}`` (rim thickness, supports...), saved as
-    :func:`run_study` saves SL."""
+    :func:`run_study` saves SL; ``say(message)`` is called before each variant."""
     out = {}
-    for label, p in variants.items():
+    for k, (label, p) in enumerate(variants.items()):
+        if say is not None:
+            say(f"  {label} ({k + 1} of {len(variants)})")
         system, kw, _, sl_every = _setup(p, dt, periods, n_saves, sl_refine)
         out[label] = solve_moments(system, save_every=sl_every, **kw)
     return out
@@ -486,7 +488,7 @@ def standard_sweeps(
     if params.ring_model != "elastic":
         return None
     say = say or (lambda msg: None)
-    kw = dict(dt=dt, periods=periods, n_saves=n_saves, sl_refine=sl_refine)
+    kw = dict(dt=dt, periods=periods, n_saves=n_saves, sl_refine=sl_refine, say=say)
     sweeps = {}
     if thicknesses:
         say(f"rim thickness {' / '.join(f'{h * 1e3:g}' for h in thicknesses)} mm (SL)")
