@@ -29,6 +29,15 @@ def _assignment(text: str):
         raise argparse.ArgumentTypeError(str(err)) from None
 
 
+#: an entry of each kind of parameter file, for the --set help
+_SET_EXAMPLE = {
+    "planetary": "wind.mean_wind_speed=12 (the load: the banner prints the mean rotor torque)",
+    "gear_pair": "damping.damping_ratio=0.05",
+    "ring_ch6": "ring.face_width=0.2",
+    "back_to_back": "operating.sun_torque_Nm=800",
+}
+
+
 def add_parameter_options(p: argparse.ArgumentParser, kind: str) -> None:
     """``--params`` and ``--set`` for a command on the parameter files of schema ``kind``."""
     p.add_argument("--params", type=Path, default=None, help=_HELP_FILE[kind])
@@ -39,7 +48,7 @@ def add_parameter_options(p: argparse.ArgumentParser, kind: str) -> None:
         type=_assignment,
         default=[],
         metavar="TABLE.KEY=VALUE",
-        help="override one entry of the parameter file (repeatable), e.g. --set ring.rim_thickness=0.1; VALUE is "
+        help=f"override one entry of the parameter file (repeatable), e.g. --set {_SET_EXAMPLE[kind]}; VALUE is "
         "read as TOML (0.1, [1e9, 2e9], true) or else as a string; docs/parameters.md lists every key",
     )
 

@@ -434,6 +434,12 @@ def load_params(
     return pm.load_params(path, **overrides) if path is not None else pm.default_params(**overrides)
 
 
+def mean_rotor_torque(params: pm.PlanetaryParams) -> float:
+    """The mean aerodynamic torque on the carrier (N m, thesis Eq. 3.28 at the mean wind speed): the load of
+    the train, set through ``wind.mean_wind_speed`` (and the rotor entries of ``[wind]``)."""
+    return float(params.wind.mean_torque(params.mesh.carrier_speed))
+
+
 def format_header(
     params: pm.PlanetaryParams,
     *,
@@ -451,7 +457,8 @@ def format_header(
     return (
         f"pgtjax planetary gear train (thesis ch. 3): {params.ring_model} ring, {params.n_planets} planets; "
         f"{n_steps} steps of {dt:g} s = {t_end:.2f} s ({t_end / carrier_period(params):.3f} carrier periods of "
-        f"{carrier_period(params):.2f} s); SL {', '.join(criteria)}, "
+        f"{carrier_period(params):.2f} s); mean rotor torque {mean_rotor_torque(params) / 1e3:.1f} kN m "
+        f"(wind {float(params.wind.mean_wind_speed):g} m/s); SL {', '.join(criteria)}, "
         + (f"MC {n_samples} samples saved every {mc_every} steps" if n_samples else "no MC")
     )
 
@@ -805,6 +812,7 @@ def summary(study: PlanetaryStudy, *, sweeps=None, modal=None, sens=None) -> dic
         dt_s=study.dt,
         carrier_period_s=study.carrier_period,
         mesh_period_s=mesh_period(study),
+        mean_rotor_torque_Nm=mean_rotor_torque(study.params),
         settings=dict(study.settings, units=SETTING_UNITS),
         sl_vs_mc={c: error_summary(study, c) for c in study.sl} if study.mc is not None else None,
         roundoff_dofs=roundoff_dofs(study.sl_result()),
