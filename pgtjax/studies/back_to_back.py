@@ -696,6 +696,26 @@ def write_outputs(study: BackToBackStudy, outdir) -> list[Path]:
     return written
 
 
+def _envelope_window(t) -> float:
+    """20 ms (several mesh periods), shortened for a short run: the window of :func:`_draw_long`."""
+    return min(0.02, float(t[-1] - t[0]) / 4.0)
+
+
+def _draw_long(ax, t, x, window: float, color: str, label: str = "") -> None:
+    """A signal of many mesh periods, which a line would draw as a solid band with moiré: per ``window`` (s)
+    its range (shaded) and mean (line), or the signal itself when it spans few windows."""
+    t, x = np.asarray(t, float), np.asarray(x, float)
+    if t[-1] - t[0] < plots.MAX_DRAWN_CYCLES * window:
+        ax.plot(t, x, lw=0.6, color=color, label=label or "instantaneous")
+        return
+    tc, lo, hi, avg = plots.cycle_envelope(t, x, window)
+    what = f"{label}: " if label else ""
+    ax.fill_between(tc, lo, hi, color=color, alpha=0.3, lw=0, label=f"{what}range per {window * 1e3:.0f} ms")
+    ax.plot(
+        tc, avg, color="tab:red" if not label else color, lw=1.2, label=f"{what}{window * 1e3:.0f} ms mean"
+    )
+
+
 def _figures(reg: RegimeResult, outdir: Path, window_s: float, hertz: dict | None = None) -> list[Path]:
     import textwrap
 
@@ -732,23 +752,11 @@ def _figures(reg: RegimeResult, outdir: Path, window_s: float, hertz: dict | Non
         out.append(plots.save(fig, outdir / f"{reg.name}_operating.png"))
 
         fig, ax = plt.subplots(2, 2, figsize=(8.0, 5.6), sharex=True, layout="constrained")
-        # 20 ms running mean (several mesh periods), shortened for a shorter run (mode="same" returns the
-        # longer of the two inputs, so the window must not exceed the series)
-        n_avg = min(max(int(round(0.02 / float(t[1] - t[0]))), 1), len(t))
-        mean = lambda x: np.convolve(x, np.ones(n_avg) / n_avg, mode="same")  # noqa: E731
+        window = _envelope_window(t)
         paper = {js: PAPER_HS_SUN, jr: PAPER_HS_RING}
         for col, (j, name) in enumerate(((js, "sun-planet 1"), (jr, "ring-planet 1"))):
             for row, series in enumerate((reg.mesh.hertz_secant, reg.mesh.mesh_stiffness)):
-                x = np.asarray(series[:, j]) * 1e-9
-                ax[row, col].plot(t, x, lw=0.4, color="tab:blue", label="instantaneous")
-                inner = slice(n_avg, len(t) - n_avg) if len(t) > 3 * n_avg else slice(None)
-                ax[row, col].plot(
-                    t[inner],
-                    mean(x)[inner],
-                    color="tab:red",
-                    lw=1.2,
-                    label=f"{1e3 * n_avg * (t[1] - t[0]):.0f} ms mean",
-                )
+                _draw_long(ax[row, col], t, np.asarray(series[:, j]) * 1e-9, window, "tab:blue")
             values = paper[j] if reg.name == "run_up" else paper[j][:1]
             for k, v in enumerate(values):
                 ax[0, col].axhline(
@@ -773,15 +781,20 @@ def _figures(reg: RegimeResult, outdir: Path, window_s: float, hertz: dict | Non
         out.append(plots.save(fig, outdir / f"{reg.name}_stiffness.png"))
 
         fig, ax = plt.subplots(3, 1, figsize=(6.4, 6.0), sharex=True, layout="constrained")
-        ax[0].plot(t, np.asarray(reg.mesh.transmission_error[:, jr]) * 1e6, lw=0.6)
-        ax[0].set_ylabel("TE ring-planet 1 (µm)")
-        ax[1].plot(t, np.asarray(reg.mesh.force[:, jr]) * 1e-3, lw=0.6)
-        ax[1].set_ylabel("mesh force ring-planet 1 (kN)")
-        for name, label in (("ring_T", "test ring (ring_T)"), ("ring_R", "reaction ring (ring_R)")):
-            ax[2].plot(t, reg.acceleration[:, bb.DOF_NAMES.index(name)], lw=0.5, label=label)
-        ax[2].set_ylabel("ring acceleration (m/s²)")
+        _draw_long(ax[0], t, np.asarray(reg.mesh.transmission_error[:, jr]) * 1e6, window, "tab:blue")
+        ax[0].set_ylabel("TE (µm)")
+        _draw_long(ax[1], t, np.asarray(reg.mesh.force[:, jr]) * 1e-3, window, "tab:blue")
+        ax[1].set_ylabel("mesh force (kN)")
+        for (name, label), color in zip(
+            (("ring_T", "test ring (ring_T)"), ("ring_R", "reaction ring (ring_R)")),
+            ("tab:blue", "tab:orange"),
+        ):
+            _draw_long(ax[2], t, reg.acceleration[:, bb.DOF_NAMES.index(name)], window, color, label)
+        ax[2].set_ylabel("acceleration (m/s²)")
         ax[2].set_xlabel("time (s)")
-        ax[2].legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
+        handles, labels = ax[0].get_legend_handles_labels()
+        more, more_labels = ax[2].get_legend_handles_labels()
+        fig.legend(handles + more, labels + more_labels, loc="outside lower center", ncol=2, frameon=False)
         for a in ax:
             a.ticklabel_format(axis="y", useOffset=False)
         fig.suptitle(
