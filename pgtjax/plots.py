@@ -105,10 +105,11 @@ def _second_error(mean, second, se_mean, se_second, kind):
     return np.hypot(2.0 * mean * se_mean, 2.0 * std * se_second)
 
 
-def _transient_free_ylim(ax, curves: list, skip: float = 0.03) -> None:
-    """y-range of the ``[(t, y)]`` curves after the first ``skip`` of the time axis, so that a std growing
-    from the deterministic start (0 at t = 0) does not squeeze the stationary detail to the top of the
-    panel."""
+def transient_free_ylim(ax, curves: list, skip: float = 0.03, zero_floor: bool = False) -> None:
+    """y-range of the ``[(t, y)]`` curves after the first ``skip`` of the time (or angle) axis, so that a std
+    growing from the deterministic start (0 at t = 0) does not squeeze the stationary detail to the top of
+    the panel; 8 % margins. ``zero_floor``: start at 0 when the values reach down to 30 % of their top (a std
+    panel). A nearly constant curve is drawn flat (as :func:`readable_ylim` does)."""
     t_all = np.concatenate([np.asarray(t, float) for t, _ in curves])
     if t_all.size < 10:
         return
@@ -119,9 +120,12 @@ def _transient_free_ylim(ax, curves: list, skip: float = 0.03) -> None:
         return
     lo, hi = float(values.min()), float(values.max())
     magnitude = max(abs(lo), abs(hi), 1e-300)
-    if hi - lo < 1e-2 * magnitude:  # nearly constant: drawn flat, as :func:`readable_ylim` does
+    if hi - lo < 1e-2 * magnitude:  # nearly constant: drawn flat
         centre = 0.5 * (lo + hi)
         ax.set_ylim(centre - 5e-3 * magnitude, centre + 5e-3 * magnitude)
+        return
+    if zero_floor and 0.0 <= lo < 0.3 * hi:
+        ax.set_ylim(0.0, hi + 0.08 * hi)
         return
     pad = 0.08 * (hi - lo)
     ax.set_ylim(lo - pad, hi + pad)
@@ -224,7 +228,7 @@ def mean_std_figure(
             axes[1, j].set_xlabel(f"time ({t_unit})")
             for ax in axes[:, j]:
                 readable_ylim(ax)
-            _transient_free_ylim(axes[1, j], drawn[1])
+            transient_free_ylim(axes[1, j], drawn[1])
         if title:
             fig.suptitle(title + (f"\n{subtitle}" if subtitle else ""), fontsize=9 if subtitle else None)
         if per_cycle:

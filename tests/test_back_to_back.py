@@ -12,6 +12,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _outputs import assert_readme_lists_every_file
 
 import pgtjax as pg
 from pgtjax.cli import back_to_back as cli_back_to_back
@@ -362,16 +363,6 @@ def test_figures_of_a_regime_shorter_than_the_running_mean_window(stationary, tm
     assert paths and all(p.exists() and p.stat().st_size > 0 for p in paths)
 
 
-def _assert_readme_lists_every_file(folder: Path) -> None:
-    readme = (folder / "README.txt").read_text()
-    assert "(no description)" not in readme
-    listed = {
-        line.split()[0] for line in readme.splitlines()[3:] if line and not line.startswith("previous-run")
-    }
-    on_disk = {p.name for p in folder.iterdir() if p.is_file()}
-    assert on_disk <= listed, on_disk - listed
-
-
 def test_stft_window_is_checked_before_any_simulation(monkeypatch, params):
     """Regression: the bench computed both regimes (19 s at the defaults) and then rejected its STFT window;
     now a window outside [8 saved samples, the shorter regime] is a ValueError naming --stft-window and the
@@ -400,7 +391,7 @@ def test_cli_run_writes_readme_and_a_summary_with_units(tmp_path, capsys):
     assert args.func(args) == 0
     printed = capsys.readouterr().out
     assert "note: Below the paper's values" in printed  # the Hertzian comparison says why it disagrees
-    _assert_readme_lists_every_file(out)
+    assert_readme_lists_every_file(out)
     summary = json.loads((out / "summary.json").read_text())
     assert missing_units(summary) == []
     ridge = summary["ridges"]["run_up"]["ring_T_acceleration"]

@@ -4,6 +4,7 @@ import os
 import time
 
 import pytest
+from _outputs import assert_readme_lists_every_file
 
 from pgtjax.cli import main
 
@@ -69,9 +70,7 @@ def test_parameters_toml_reproduces_the_run_and_set_overrides_name_their_key(tmp
     assert summary[0] == summary[1]
     assert missing_units(summary[0]) == [], "every number in summary.json carries a unit"
     assert {"sl_vs_mc", "rim_thickness", "supports", "modes"} <= set(summary[0])
-    index = (first / "README.txt").read_text()  # one line for every file of the folder
-    assert "(no description)" not in index
-    assert all(f.name in index for f in first.iterdir() if f.is_file())
+    assert_readme_lists_every_file(first)
     a, _ = pg.load_results(first / "planetary_sl_force.npz")
     b, _ = pg.load_results(second / "planetary_sl_force.npz")
     np.testing.assert_array_equal(np.asarray(a.std_u), np.asarray(b.std_u))

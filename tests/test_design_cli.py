@@ -7,6 +7,7 @@ import tomllib
 
 import numpy as np
 import pytest
+from _outputs import assert_readme_lists_every_file
 
 from pgtjax import params as embedded
 from pgtjax._summary import missing_units
@@ -58,9 +59,7 @@ def test_optimize_writes_its_outputs_and_resumes(tmp_path, capsys, monkeypatch):
         assert (out / name).is_file(), name
     summary = json.loads((out / "summary.json").read_text())
     assert missing_units(summary) == []  # every number carries its unit
-    index = (out / "README.txt").read_text()
-    assert "(no description)" not in index
-    assert all(f.name in index for f in out.iterdir() if f.is_file()), index
+    assert_readme_lists_every_file(out)
     assert summary["objective"]["unit"] == "m" and summary["units"]["cost_units"] == ["N/m"]
     check = summary["monte_carlo"]["designs"]["optimum"]
     assert np.isfinite(check["improvement_in_se"])

@@ -10,6 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _outputs import assert_readme_lists_every_file
 
 import pgtjax as pg
 from pgtjax._summary import missing_units
@@ -214,7 +215,7 @@ def test_cli_smoke(tmp_path, capsys):
     assert args.func(args) == 0
     assert (tmp_path / "summary.json").is_file() and (tmp_path / "fig6_7_sweep.png").exists() is False
     assert (tmp_path / "fig6_4_mid_base.png").is_file() and (tmp_path / "modes_ch6_ring.png").is_file()
-    _assert_readme_lists_every_file(tmp_path)
+    assert_readme_lists_every_file(tmp_path)
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert missing_units(summary) == []
     assert summary["magnitude_check"]["finding"] == rml_study.MAGNITUDE_NOTE
@@ -232,20 +233,10 @@ def test_cli_smoke(tmp_path, capsys):
     assert "pgtjax: error:" in capsys.readouterr().err
 
 
-def _assert_readme_lists_every_file(folder) -> None:
-    readme = (folder / "README.txt").read_text()
-    assert "(no description)" not in readme
-    listed = {
-        line.split()[0] for line in readme.splitlines()[3:] if line and not line.startswith("previous-run")
-    }
-    on_disk = {p.name for p in folder.iterdir() if p.is_file()}
-    assert on_disk <= listed, on_disk - listed
-
-
 def test_free_vibration_cli_writes_readme_and_says_why_table_5_3_disagrees(tmp_path, capsys):
     from pgtjax.studies import ring_free_vibration as fv
 
     args = _parser().parse_args(["ring-free-vibration", "--n-elements", "16", "--out", str(tmp_path)])
     assert args.func(args) == 0
     assert fv.DISAGREEMENT_NOTE in capsys.readouterr().out
-    _assert_readme_lists_every_file(tmp_path)
+    assert_readme_lists_every_file(tmp_path)

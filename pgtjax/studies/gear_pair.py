@@ -267,22 +267,6 @@ def ks_distance(reg: RegimeResult, criterion: str = "force", time_index: int = 0
     return dict(ks=float(np.max(np.abs(cdf_mc - cdf_sl))), critical_5pct=1.36 / np.sqrt(reg.mc.n_samples))
 
 
-def _visible_ylim(ax, t, values, skip_fraction: float = 0.05, include_zero: bool = False) -> None:
-    """y-limits from the values after the first ``skip_fraction`` of the time axis (the std's initial zero and
-    the start-up transient do not squeeze the axis); 8 % margins."""
-    t = np.asarray(t)
-    late = t >= t[0] + skip_fraction * (t[-1] - t[0])
-    v = np.concatenate([np.asarray(x)[late] for x in values])
-    v = v[np.isfinite(v)]
-    if v.size == 0:
-        return
-    lo, hi = float(v.min()), float(v.max())
-    if include_zero:
-        lo = min(lo, 0.0)
-    pad = 0.08 * (hi - lo) if hi > lo else 0.05 * max(abs(hi), 1e-30)
-    ax.set_ylim(lo - pad, hi + pad)
-
-
 def moments_figure(reg: RegimeResult, title: str, subtitle: str = ""):
     """Mean (top) and std (bottom) of y1, y2, z, delta in µm over time (ms): SL criteria as lines drawn above
     the MC markers, whose bars are 95 % confidence intervals (1.96 standard errors of the mean and of the
@@ -338,7 +322,7 @@ def moments_figure(reg: RegimeResult, title: str, subtitle: str = ""):
             axes[0, j].set_ylabel(f"mean ({shown})")
             axes[1, j].set_ylabel(f"std ({shown})")
             axes[1, j].set_xlabel("time (ms)")
-            _visible_ylim(axes[1, j], times, [s for _, s in series])
+            plots.transient_free_ylim(axes[1, j], [(times, s) for _, s in series], skip=0.05)
             for ax in axes[:, j]:
                 ax.ticklabel_format(axis="y", useOffset=False)
         handles, labels = axes[0, 0].get_legend_handles_labels()

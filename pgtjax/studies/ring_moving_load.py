@@ -511,21 +511,6 @@ def _mc_point_se(result: MonteCarloResult, which: str):
     return 1.96 * np.asarray(se_m[keep, j]), 1.96 * np.asarray(se_s[keep, j])
 
 
-def _std_ylim(ax, x, values, skip_fraction: float = 0.03) -> None:
-    """y-limits of a std axis from the values after the first ``skip_fraction`` of the x-axis (the initial
-    near-zero std does not squeeze the axis), from 0 when the values reach down near it."""
-    x = np.asarray(x)
-    late = x >= x[0] + skip_fraction * (x[-1] - x[0])
-    v = np.concatenate([np.asarray(y)[late] for y in values])
-    v = v[np.isfinite(v)]
-    if v.size == 0:
-        return
-    lo, hi = float(v.min()), float(v.max())
-    lo = 0.0 if lo < 0.3 * hi else lo
-    pad = 0.06 * (hi - lo) if hi > lo else 0.05 * max(abs(hi), 1e-30)
-    ax.set_ylim(max(lo - pad, 0.0) if lo == 0.0 else lo - pad, hi + pad)
-
-
 def response_figure(curves: dict, which: str, title: str = "", angle_axis=True, subtitle: str = ""):
     """Mean and std of u_r (inward positive; µm or mm, whichever reads best) against the load angle
     omega_c t (deg) for each labelled result; ``curves[label] = (result, omega_c)``. Monte Carlo results are
@@ -568,7 +553,7 @@ def response_figure(curves: dict, which: str, title: str = "", angle_axis=True, 
         a1.set_ylabel(f"std u_r ({unit})")
         a1.set_xlabel("load angle ω_c t (deg)" if angle_axis else "time (ms)")
         if x_any is not None:
-            _std_ylim(a1, x_any, stds)
+            plots.transient_free_ylim(a1, [(x_any, y) for y in stds], zero_floor=True)
         for ax in (a0, a1):
             ax.ticklabel_format(axis="y", useOffset=False)
         handles, labels = a0.get_legend_handles_labels()
@@ -865,7 +850,7 @@ def _std_panels(panels: dict, title: str, subtitle: str):
                 x = np.degrees(w * t)
                 ax.plot(x, s * factor, label=label)
             if x is not None:
-                _std_ylim(ax, x, [s * factor for _, _, s in rows])
+                plots.transient_free_ylim(ax, [(x, s * factor) for _, _, s in rows], zero_floor=True)
             ax.set_title(f"ω_c = {w:g} rad/s")
             ax.set_xlabel("load angle ω_c t (deg)")
             ax.ticklabel_format(axis="y", useOffset=False)
