@@ -43,6 +43,9 @@ LINESTYLES = {
     "SL energy": dict(color="tab:red", ls=":"),
 }
 
+#: Monte Carlo as markers with error bars (``ax.errorbar(t, y, yerr=1.96 * se, **MC_ERRORBARS)``), under SL lines
+MC_ERRORBARS = dict(fmt="o", ms=2.2, color="0.25", ecolor="0.6", elinewidth=0.6, capsize=0, zorder=2)
+
 #: more cycles of ``mean_std_figure``'s ``cycle`` than this in a panel are drawn per cycle (no aliasing)
 MAX_DRAWN_CYCLES = 12
 

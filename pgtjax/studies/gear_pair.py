@@ -294,13 +294,7 @@ def moments_figure(reg: RegimeResult, title: str, subtitle: str = ""):
                         tm,
                         val * factor,
                         yerr=1.96 * np.asarray(se[:, col]) * factor,
-                        fmt="o",
-                        ms=2.2,
-                        color="0.25",
-                        ecolor="0.6",
-                        elinewidth=0.6,
-                        capsize=0,
-                        zorder=2,
+                        **plots.MC_ERRORBARS,
                         label=f"MC ({reg.mc.n_samples} samples), 95 % CI" if j == 0 and row == 0 else None,
                     )
                 bars = 1.96 * np.asarray(se_s[:, col])
