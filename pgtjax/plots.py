@@ -46,6 +46,9 @@ LINESTYLES = {
 #: Monte Carlo as markers with error bars (``ax.errorbar(t, y, yerr=1.96 * se, **MC_ERRORBARS)``), under SL lines
 MC_ERRORBARS = dict(fmt="o", ms=2.2, color="0.25", ecolor="0.6", elinewidth=0.6, capsize=0, zorder=2)
 
+#: the most Monte Carlo markers per panel when a long run is drawn per cycle
+MAX_MARKERS = 50
+
 #: more cycles of ``mean_std_figure``'s ``cycle`` than this in a panel are drawn per cycle (no aliasing)
 MAX_DRAWN_CYCLES = 12
 
@@ -203,6 +206,10 @@ def mean_std_figure(
                             )
                             drawn[row] += [(tc, lo * f), (tc, hi * f)]
                         t_plot, y_plot = tc, avg
+                        if markers:  # at most MAX_MARKERS cycle averages: the error bars stay apart
+                            keep = slice(None, None, -(-len(tc) // MAX_MARKERS))
+                            t_plot, y_plot = t_plot[keep], y_plot[keep]
+                            err = None if err is None else err[keep]
                     else:
                         t_plot, y_plot = t, y
                     if markers and err is not None:
@@ -232,11 +239,19 @@ def mean_std_figure(
             for ax in axes[:, j]:
                 readable_ylim(ax)
             transient_free_ylim(axes[1, j], drawn[1])
+            for row, ax in enumerate(axes[:, j]):  # the panel holds every error bar (readable_ylim may not)
+                lo, hi = ax.get_ylim()
+                tops = [y for _, y in drawn[row] if np.size(y)]
+                top, bottom = max(float(np.nanmax(y)) for y in tops), min(float(np.nanmin(y)) for y in tops)
+                if row == 0 and (bottom < lo or top > hi):
+                    pad = 0.05 * (max(hi, top) - min(lo, bottom))
+                    ax.set_ylim(min(lo, bottom - pad), max(hi, top + pad))
         if title:
             fig.suptitle(title + (f"\n{subtitle}" if subtitle else ""), fontsize=9 if subtitle else None)
         if per_cycle:
-            handles[f"shaded: range within each {cycle_name}; lines and markers: {cycle_name} averages"] = (
-                Patch(color="0.6", alpha=0.4, lw=0)
+            averaged = "lines and markers" if any(", 95 %" in k for k in handles) else "lines"
+            handles[f"shaded: range within each {cycle_name}; {averaged}: {cycle_name} averages"] = Patch(
+                color="0.6", alpha=0.4, lw=0
             )
         fig.legend(
             list(handles.values()), list(handles), loc="outside lower center", ncol=min(len(handles), 4)

@@ -36,7 +36,11 @@ def _add_gear_pair_options(p: argparse.ArgumentParser, quick: bool) -> None:
         "--t-end", type=positive_float, default=0.04, help="simulated time in s (default %(default)s)"
     )
     p.add_argument(
-        "--saves", type=positive_int, default=80, help="number of saved times (default %(default)s)"
+        "--saves",
+        type=positive_int,
+        default=400,
+        help="number of saved times (default %(default)s: about 19 per mesh period of the default run, "
+        "so that the meshing ripple is resolved)",
     )
     p.add_argument(
         "--criteria",

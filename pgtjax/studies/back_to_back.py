@@ -830,7 +830,12 @@ def _figures(reg: RegimeResult, outdir: Path, window_s: float, hertz: dict | Non
             fm = frame_average(t, reg.mesh_frequency, ft + t[0], window_s)
             for i, k in enumerate(orders):
                 axs.plot(
-                    ft + t[0], k * fm, "w--", lw=0.8, label="k Z_r f_c (frame means)" if i == 0 else None
+                    ft + t[0],
+                    k * fm,
+                    "w--",
+                    lw=0.5,
+                    alpha=0.5,
+                    label="k Z_r f_c (frame means)" if i == 0 else None,
                 )
                 axs.annotate(
                     f"k = {k}",

@@ -368,11 +368,11 @@ def variables_figure(study: DesignStudy):
             idx = np.arange(np.size(x0))
             ax.bar(idx - 0.2, factor * np.ravel(x0), 0.4, label="symmetric start")
             ax.bar(idx + 0.2, factor * np.ravel(x1), 0.4, label="optimum")
-            ax.axhline(factor * v.lower, color="0.5", ls=":", lw=1)
+            ax.axhline(factor * v.lower, color="0.5", ls=":", lw=1, label="lower bound")
             ax.set(xlabel="bolt" if v.size else "", ylabel=f"{v.name} ({unit})" if unit else v.name)
             ax.set_ylim(0.0, 1.25 * factor * max(float(np.max(x0)), float(np.max(x1))))
             ax.set_xticks(idx)
-            ax.legend(loc="upper left", ncol=2)
+            ax.legend(loc="upper left", ncol=3)
         fig.tight_layout()
     return fig
 
@@ -381,27 +381,24 @@ def response_figure(study: DesignStudy):
     ((quantity, data),) = study.series.items()
     factor, unit = plots.scaled(study.problem.names.unit(quantity))
     with plots.mpl.rc_context(plots.STYLE):
-        fig, ax = plots.plt.subplots(figsize=(8, 3.6))
+        fig, ax = plots.plt.subplots(figsize=(8, 3.9), layout="constrained")
         for name, d in data.items():
-            (line,) = ax.plot(d["times"], factor * d["sl"], label=f"{name}: SL")
+            (line,) = ax.plot(d["times"], factor * d["sl"], label=f"{name}: SL", zorder=3)
             every = max(len(d["times"]) // 40, 1)
             ax.errorbar(
                 d["times"][::every],
                 factor * d["mc"][::every],
-                yerr=2 * factor * d["mc_se"][::every],
-                fmt="o",
-                ms=3,
-                color=line.get_color(),
-                label=f"{name}: Monte Carlo (2 s.e.)",
+                yerr=1.96 * factor * d["mc_se"][::every],
+                **{**plots.MC_ERRORBARS, "color": line.get_color(), "ecolor": line.get_color()},
+                label=f"{name}: Monte Carlo, 95 % error bars",
             )
         ax.set(
             xlabel="time (s)",
             ylabel=f"std of {quantity} ({unit})",
             title="symmetric bolts against the optimum: SL lines, Monte Carlo markers",
         )
-        ax.set_ylim(0.0, 1.3 * ax.get_ylim()[1])  # room for the legend above the curves
-        ax.legend(loc="upper left", ncol=2)
-        fig.tight_layout()
+        ax.set_ylim(0.0, None)
+        fig.legend(loc="outside lower center", ncol=2, frameon=False)
     return fig
 
 

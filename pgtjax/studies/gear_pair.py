@@ -288,12 +288,13 @@ def moments_figure(reg: RegimeResult, title: str, subtitle: str = ""):
                 se_m, se_s = reg.mc.standard_error("delta" if name == "delta" else "u")
                 col = 0 if name == "delta" else reg.mc.dof(name)
                 m, s = _series(reg.mc, name)
-                tm = np.asarray(reg.mc.times) * 1e3
+                every = -(-len(reg.mc.times) // 100)  # at most ~100 markers: the error bars stay apart
+                tm = np.asarray(reg.mc.times)[::every] * 1e3
                 for row, (val, se) in enumerate(((m, se_m), (s, se_s))):
                     axes[row, j].errorbar(
                         tm,
-                        val * factor,
-                        yerr=1.96 * np.asarray(se[:, col]) * factor,
+                        val[::every] * factor,
+                        yerr=1.96 * np.asarray(se[::every, col]) * factor,
                         **plots.MC_ERRORBARS,
                         label=f"MC ({reg.mc.n_samples} samples), 95 % CI" if j == 0 and row == 0 else None,
                     )
