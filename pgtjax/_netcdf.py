@@ -88,7 +88,12 @@ def to_xarray(result, **attributes):
             keys.append(key)
             var = f"{field}_{len(keys) - 1}"
             dims = tuple(f"{var}_dim{i}" for i in range(value.ndim))
-            variables[var] = (dims, value, {"units": "1", "long_name": f"{field}[{key!r}]"})
+            unit = (
+                "the quantity's (m for deflections, N for forces)"
+                if field == "histogram_edges"
+                else "1 (count)"
+            )
+            variables[var] = (dims, value, {"units": unit, "long_name": f"{field}[{key!r}]"})
             continue
         if name in _DOF_FIELDS:
             dims = ("time", "dof")

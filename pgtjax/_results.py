@@ -346,7 +346,7 @@ def load_results(path):
     require_x64("load_results")
     path = _as_path(path)
     if path.is_dir():
-        raise ValueError(f"result file {str(path)!r} is a folder, not a .npz file written by save_results")
+        raise ValueError(f"result file {str(path)!r} is a folder, not a file written by save_results")
     try:
         if path.suffix == ".nc":
             from ._netcdf import read_netcdf
@@ -361,7 +361,7 @@ def load_results(path):
         raise ValueError(f"result file {str(path)!r} does not exist") from None
     except (OSError, ValueError, KeyError, TypeError, EOFError, zipfile.BadZipFile) as err:
         raise ValueError(
-            f"{str(path)!r} is not a readable pgtjax result file (.npz written by save_results): "
+            f"{str(path)!r} is not a readable pgtjax result file (.npz or .nc written by save_results): "
             f"{type(err).__name__}: {err}"
         ) from None
     attributes = meta.pop("attributes", {})

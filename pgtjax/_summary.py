@@ -8,13 +8,19 @@ A number's unit is named either
   (the nearest such mapping wins; it overrides a key's suffix), or
 * by the ``"unit"`` entry (a string) of the nearest enclosing object (lists count as their key's).
 
+A unit named by a key (suffix or mapping) also holds for everything inside that key's value, and takes
+precedence there over a ``"unit"`` entry further in: name units as close to the numbers as you can.
+
 Booleans, strings and ``null`` need none. :func:`write_summary` refuses a summary with a number that has no
 unit (a programming error of the study, caught by every test that runs one).
 """
 
 from __future__ import annotations
 
+import numbers
 from pathlib import Path
+
+import numpy as np
 
 from ._files import write_json
 
@@ -34,6 +40,7 @@ UNIT_SUFFIXES = {
     "_kN": "kN",
     "_Nm": "N m",
     "_N_per_m": "N/m",
+    "_m_per_N": "m/N",
     "_Pa": "Pa",
     "_MPa": "MPa",
     "_kg": "kg",
@@ -50,7 +57,7 @@ _BY_LENGTH = sorted(UNIT_SUFFIXES, key=len, reverse=True)
 #: the rule, written into every summary so that the file explains itself
 CONVENTION = (
     "Every number's unit is named by the suffix of its key (_s seconds, _Hz hertz, _m metres, _N newtons, "
-    "_Nm newton metres, _N_per_m N/m, _rad radians, _rad_per_s rad/s, _rpm, _kg, _Pa, _in_se Monte Carlo "
+    "_Nm newton metres, _N_per_m N/m, _m_per_N m/N, _rad radians, _rad_per_s rad/s, _rpm, _kg, _Pa, _in_se Monte Carlo "
     "standard errors, _ratio/_fraction/_probability/_count/_dimensionless: 1), or by a 'units' object, which "
     "maps key names to units inside the object that holds it, or by the 'unit' entry of the nearest "
     "enclosing object."
@@ -63,6 +70,16 @@ def unit_of_key(key: str) -> str | None:
         if key.endswith(suffix) and len(key) > len(suffix):
             return UNIT_SUFFIXES[suffix]
     return None
+
+
+def _is_number(value) -> bool:
+    """A number JSON will write: Python's, NumPy's (0-d arrays too) and JAX scalars; not a bool."""
+    if isinstance(value, bool | np.bool_):
+        return False
+    if isinstance(value, numbers.Number):
+        return True
+    dtype = getattr(value, "dtype", None)  # NumPy and JAX arrays and scalars
+    return dtype is not None and np.ndim(value) == 0 and np.dtype(dtype).kind in "iuf"
 
 
 def missing_units(
@@ -84,7 +101,7 @@ def missing_units(
     elif isinstance(data, (list, tuple)):
         for i, value in enumerate(data):
             missing += missing_units(value, f"{path}[{i}]", inherited, mapping)
-    elif isinstance(data, (int, float)) and not isinstance(data, bool):
+    elif _is_number(data):
         if inherited is None:
             missing.append(path)
     return missing

@@ -162,28 +162,37 @@ def mean_std_figure(
     average with the mean of their standard errors (an upper bound of the average's). The legend sits below
     the panels. Returns a :class:`~matplotlib.figure.Figure` outside pyplot (see the module's note).
     """
+    if not curves or not quantities:
+        raise ValueError("mean_std_figure needs at least one curve and one quantity")
     styles = {**LINESTYLES, **(styles or {})}
     times_of = times if isinstance(times, dict) else {label: times for label in curves}
     t_all = np.concatenate([np.asarray(times_of[label], float) for label in curves])
     t_scale, t_unit = _time_axis(t_all)
     span = float(t_all.max() - t_all.min()) if t_all.size else 0.0
-    per_cycle = cycle is not None and span > MAX_DRAWN_CYCLES * cycle
+    # per cycle only where every curve is saved often enough to have a range within each cycle
+    per_cycle = (
+        cycle is not None
+        and span > MAX_DRAWN_CYCLES * cycle
+        and min(np.size(times_of[label]) for label in curves) >= 4 * span / cycle
+    )
     handles = {}
     with mpl.rc_context(STYLE):
         fig = Figure(figsize=(2.6 * len(quantities) + 0.6, 4.8), layout="constrained")
         axes = fig.subplots(2, len(quantities), squeeze=False, sharex=True)
         for j, (name, unit) in enumerate(quantities):
-            magnitude = max(  # of the mean and of the std (or root mean square): one prefix for both rows
-                float(
-                    np.nanmax(
-                        np.abs(np.asarray(d[name][k], float)) ** (0.5 if k and second == "mean square" else 1)
-                    )
-                )
-                for d in curves.values()
-                for k in (0, 1)
-            )
-            factor, shown = scaled(unit, magnitude)
-            f2 = factor**2 if second == "mean square" else factor
+
+            def row_magnitude(k):  # of the mean (k = 0) or the std / root mean square (k = 1)
+                values = [np.abs(np.asarray(d[name][k], float)) for d in curves.values()]
+                finite = [v[np.isfinite(v)] for v in values]
+                top = max((float(v.max()) for v in finite if v.size), default=0.0)
+                return top**0.5 if k and second == "mean square" else top
+
+            magnitudes = (row_magnitude(0), row_magnitude(1))
+            factor, shown = scaled(unit, max(magnitudes))  # one prefix for both rows...
+            factor2, shown2 = factor, shown
+            if min(magnitudes) > 0 and max(magnitudes) > 1e3 * min(magnitudes):  # ...unless it hides one
+                factor2, shown2 = scaled(unit, magnitudes[1])
+            f2 = factor2**2 if second == "mean square" else factor2
             drawn = {0: [], 1: []}
             for label, data in curves.items():
                 mean, moment2 = (np.asarray(a, float) for a in data[name][:2])
@@ -213,17 +222,11 @@ def mean_std_figure(
                     else:
                         t_plot, y_plot = t, y
                     if markers and err is not None:
-                        artist = ax.errorbar(
-                            t_plot * t_scale,
-                            y_plot * f,
-                            yerr=1.96 * err * f,
-                            elinewidth=0.6,
-                            capsize=0,
-                            zorder=2,
-                            **{**style, "ms": style.get("ms", 2.0)},
-                        )
+                        bar_style = {"elinewidth": 0.6, "capsize": 0, "zorder": 2, "ms": 2.0, **style}
+                        artist = ax.errorbar(t_plot * t_scale, y_plot * f, yerr=1.96 * err * f, **bar_style)
                     else:
-                        (artist,) = ax.plot(t_plot * t_scale, y_plot * f, zorder=2 if markers else 3, **style)
+                        line_style = {"zorder": 2 if markers else 3, **style}
+                        (artist,) = ax.plot(t_plot * t_scale, y_plot * f, **line_style)
                     drawn[row].append((t_plot, y_plot * f))
                     if markers and err is not None:  # the error bars stay inside the panel
                         drawn[row] += [
@@ -234,15 +237,18 @@ def mean_std_figure(
                     handles.setdefault(f"{label}{suffix}", artist)
             axes[0, j].set_title(name)
             axes[0, j].set_ylabel(f"mean ({shown})")
-            axes[1, j].set_ylabel(f"{second} ({shown}²)" if second == "mean square" else f"std ({shown})")
+            axes[1, j].set_ylabel(f"{second} ({shown2}²)" if second == "mean square" else f"std ({shown2})")
             axes[1, j].set_xlabel(f"time ({t_unit})")
             for ax in axes[:, j]:
                 readable_ylim(ax)
             transient_free_ylim(axes[1, j], drawn[1])
             for row, ax in enumerate(axes[:, j]):  # the panel holds every error bar (readable_ylim may not)
                 lo, hi = ax.get_ylim()
-                tops = [y for _, y in drawn[row] if np.size(y)]
-                top, bottom = max(float(np.nanmax(y)) for y in tops), min(float(np.nanmin(y)) for y in tops)
+                finite = np.concatenate([np.ravel(y) for _, y in drawn[row]] or [np.zeros(0)])
+                finite = finite[np.isfinite(finite)]
+                if finite.size == 0:
+                    continue
+                top, bottom = float(finite.max()), float(finite.min())
                 if row == 0 and (bottom < lo or top > hi):
                     pad = 0.05 * (max(hi, top) - min(lo, bottom))
                     ax.set_ylim(min(lo, bottom - pad), max(hi, top + pad))

@@ -534,6 +534,25 @@ def test_per_cycle_envelope_and_si_prefixes():
     assert plots.scaled("m", 1.9e-4) == (1e6, "µm") and plots.scaled("m", 0.017) == (1e3, "mm")
     assert plots.scaled("rad", 3e-5) == (1e6, "µrad") and plots.scaled("N", 1.1e5) == (1e-3, "kN")
     assert plots.scaled("Hz", 10.0) == (1.0, "Hz")
+    # a curve saved less than 4 times a cycle has no range within a cycle: everything is drawn point by point
+    dense, sparse = np.linspace(0, 1, 2001), np.linspace(0, 1, 40)
+    curves = {
+        "SL": {"x": (np.sin(dense), np.ones_like(dense))},
+        "MC": {"x": (np.sin(sparse), np.ones_like(sparse), 0.1 + 0 * sparse, 0.1 + 0 * sparse)},
+    }
+    times = {"SL": dense, "MC": sparse}
+    fig = plots.mean_std_figure(
+        times, curves, [("x", "m")], cycle=0.02, styles={"MC": {"ls": "none", "marker": "o"}}
+    )
+    assert len(fig.axes[0].get_lines()[0].get_xdata()) == 2001  # SL point by point, not 50 cycle averages
+    # numbers of every numeric type need a unit in summary.json
+    from pgtjax._summary import missing_units
+
+    assert missing_units({"a": np.int64(3), "b": np.float32(1), "c": jnp.float64(1.0), "d": True}) == [
+        "a",
+        "b",
+        "c",
+    ]
 
 
 def test_sweep_figure_names_curves_that_coincide():

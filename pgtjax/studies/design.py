@@ -448,10 +448,11 @@ def summary(study: DesignStudy, spec: DesignSpec) -> dict:
     start, end = r.history[0], r.history[-1]
     units = {v["name"]: v["unit"] for v in desc["variables"]}
     opt = study.check["designs"]["optimum"]
-    response_unit = desc["objective"]["unit"]
+    response_unit = desc["objective"]["unit"] or "the custom objective's (not given)"
     return dict(
         objective=dict(
             desc["objective"],
+            unit=response_unit,
             symmetric=start["response"],
             optimum=end["response"],
             relative_change=end["response"] / start["response"] - 1.0,

@@ -766,12 +766,14 @@ def _sweep_summary(results: dict[str, MomentResult]) -> dict:
         variants[label] = {}
         for n in names:
             mean, std = _dof_series(r, n)
+            if len(mean) > 1:  # the response over the run, after the start
+                mean, std = mean[1:], std[1:]
             variants[label][n] = dict(
                 unit=str(r.dof_units[r.dof(n)]),
-                time_average_of_mean=float(np.mean(mean[1:])),
-                min_mean=float(np.min(mean[1:])),
-                max_mean=float(np.max(mean[1:])),
-                time_average_of_std=float(np.mean(std[1:])),
+                time_average_of_mean=float(np.mean(mean)),
+                min_mean=float(np.min(mean)),
+                max_mean=float(np.max(mean)),
+                time_average_of_std=float(np.mean(std)),
                 max_std=float(np.max(std)),
             )
     out = {"variants": variants}

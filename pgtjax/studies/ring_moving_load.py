@@ -677,8 +677,10 @@ def magnitude_check(study: RingMovingLoadStudy) -> dict:
                 thesis_max_std_m=thesis_std,
                 mean_over_thesis_ratio=mean / thesis_mean,
                 std_over_thesis_ratio=std / thesis_std,
-                F0_needed_for_thesis_mean_N=f0 * thesis_mean / mean,
-                noise_intensity_needed_for_thesis_std=dict(unit="N s^0.5", value=b * thesis_std / std),
+                F0_needed_for_thesis_mean_N=None if mean == 0 else f0 * thesis_mean / mean,
+                noise_intensity_needed_for_thesis_std=dict(
+                    unit="N s^0.5", value=None if std == 0 else b * thesis_std / std
+                ),
             )
         )
     return dict(
