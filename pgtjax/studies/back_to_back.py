@@ -696,12 +696,12 @@ def write_outputs(study: BackToBackStudy, outdir) -> list[Path]:
     return written
 
 
-def _envelope_window(t) -> float:
-    """20 ms (several mesh periods), shortened for a short run: the window of :func:`_draw_long`."""
+def envelope_window(t) -> float:
+    """20 ms (several mesh periods), shortened for a short run: the window of :func:`draw_per_window`."""
     return min(0.02, float(t[-1] - t[0]) / 4.0)
 
 
-def _draw_long(ax, t, x, window: float, color: str, label: str = "") -> None:
+def draw_per_window(ax, t, x, window: float, color: str, label: str = "") -> None:
     """A signal of many mesh periods, which a line would draw as a solid band with moiré: per ``window`` (s)
     its range (shaded) and mean (line), or the signal itself when it spans few windows."""
     t, x = np.asarray(t, float), np.asarray(x, float)
@@ -752,11 +752,11 @@ def _figures(reg: RegimeResult, outdir: Path, window_s: float, hertz: dict | Non
         out.append(plots.save(fig, outdir / f"{reg.name}_operating.png"))
 
         fig, ax = plt.subplots(2, 2, figsize=(8.0, 5.6), sharex=True, layout="constrained")
-        window = _envelope_window(t)
+        window = envelope_window(t)
         paper = {js: PAPER_HS_SUN, jr: PAPER_HS_RING}
         for col, (j, name) in enumerate(((js, "sun-planet 1"), (jr, "ring-planet 1"))):
             for row, series in enumerate((reg.mesh.hertz_secant, reg.mesh.mesh_stiffness)):
-                _draw_long(ax[row, col], t, np.asarray(series[:, j]) * 1e-9, window, "tab:blue")
+                draw_per_window(ax[row, col], t, np.asarray(series[:, j]) * 1e-9, window, "tab:blue")
             values = paper[j] if reg.name == "run_up" else paper[j][:1]
             for k, v in enumerate(values):
                 ax[0, col].axhline(
@@ -781,15 +781,15 @@ def _figures(reg: RegimeResult, outdir: Path, window_s: float, hertz: dict | Non
         out.append(plots.save(fig, outdir / f"{reg.name}_stiffness.png"))
 
         fig, ax = plt.subplots(3, 1, figsize=(6.4, 6.0), sharex=True, layout="constrained")
-        _draw_long(ax[0], t, np.asarray(reg.mesh.transmission_error[:, jr]) * 1e6, window, "tab:blue")
+        draw_per_window(ax[0], t, np.asarray(reg.mesh.transmission_error[:, jr]) * 1e6, window, "tab:blue")
         ax[0].set_ylabel("TE (µm)")
-        _draw_long(ax[1], t, np.asarray(reg.mesh.force[:, jr]) * 1e-3, window, "tab:blue")
+        draw_per_window(ax[1], t, np.asarray(reg.mesh.force[:, jr]) * 1e-3, window, "tab:blue")
         ax[1].set_ylabel("mesh force (kN)")
         for (name, label), color in zip(
             (("ring_T", "test ring (ring_T)"), ("ring_R", "reaction ring (ring_R)")),
             ("tab:blue", "tab:orange"),
         ):
-            _draw_long(ax[2], t, reg.acceleration[:, bb.DOF_NAMES.index(name)], window, color, label)
+            draw_per_window(ax[2], t, reg.acceleration[:, bb.DOF_NAMES.index(name)], window, color, label)
         ax[2].set_ylabel("acceleration (m/s²)")
         ax[2].set_xlabel("time (s)")
         handles, labels = ax[0].get_legend_handles_labels()
