@@ -22,7 +22,9 @@ models); otherwise one LU of the contact-free ``K_eff`` per step with a Woodbury
 Gradients through the converged fixed point use the implicit function theorem (a ``custom_jvp`` whose tangent
 is ``-J^-1 dR/dtheta``, written in closed form; reverse mode transposes it); the iterations themselves are not
 differentiated and cost nothing extra in a forward run, and under ``checkpoint`` their solution is kept rather
-than recomputed.
+than recomputed. The covariance update's dense products have derivative rules of their own (``custom_jvp``,
+using the symmetry of P) that refer to X_u and P only, so the checkpointed reverse pass does not recompute them
+(docs/gradients.md).
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.ad_checkpoint import checkpoint_name
+from jax.custom_derivatives import SymbolicZero
 
 from ._contact import AbstractCriterion, Linearization, as_criterion
 from ._failure import SolverError, error_if_nonfinite, is_concrete, raise_if_nonfinite
@@ -64,6 +67,7 @@ from ._system import (
 )
 
 _FIXED_POINT_NAME = "sl_fixed_point"
+_COVARIANCE_NAME = "sl_covariance_product"  # X_u P, kept by the checkpointed reverse pass
 _DENSE_PHI_MAX_DOF = 16  # below this size the covariance update forms Phi explicitly (overhead-bound regime)
 
 
@@ -391,11 +395,13 @@ def _record(system, carry: _Carry, info: _FixedPointInfo, t, observables, cov_in
     nc = system.n_contacts
     n = system.n_dof
     if observables is not None:
-        c = observables(t)
+        c = checkpoint_name(observables(t), _COVARIANCE_NAME)
         obs_mean = (
             c @ carry.mean[:n] if observables.offset is None else c @ carry.mean[:n] + observables.shift(t)
         )
-        obs_std = safe_sqrt(jnp.sum((c @ carry.cov[:n, :n]) * c, axis=1))
+        # kept by the checkpointed reverse pass, which then need not recompute the covariance update
+        c_cov = checkpoint_name(c @ carry.cov[:n, :n], _COVARIANCE_NAME)
+        obs_std = safe_sqrt(jnp.sum(c_cov * c, axis=1))
     else:
         obs_mean = obs_std = jnp.zeros((0,))
     if nc:
@@ -487,26 +493,77 @@ def _moment_step(system: System, carry: _Carry, t1, h, criterion, integrator, rt
     else:
         a_mat = solve(z_mat)  # X_u P, (n, 2n)
         u_cov = solve(solve(y_mat.T).T)  # X_u P X_u^T
-        new_cov = _assemble_covariance(cov, a_mat, u_cov, g_u, g_v, h)
+        new_cov = _assemble_covariance(cov, u_cov, _times_w(a_mat, h), g_u, g_v, h)
     new_mean = jnp.concatenate([u_mean, (2.0 / h) * (u_mean - mean[:n]) - mean[n:]])
     return _Carry(new_mean, new_cov, s1, z1, lin1), info
 
 
-def _assemble_covariance(cov, a_mat, u_cov, g_u, g_v, h):
-    """``Phi P Phi^T + Gamma Gamma^T`` from the displacement rows ``X_u`` of Phi, given ``a_mat = X_u P``
-    and ``u_cov = X_u P X_u^T``: the velocity rows are ``Phi_v = (2/h) X_u - W``, ``W = [(2/h) I, I]``
-    (the kinematic relation v1 = (2/h)(u1 - u0) - v0), so every block follows without forming Phi.
+def _times_w(a_mat, h):
+    """``a W^T`` for ``a`` (n, 2n): ``W = [(2/h) I, I]`` (the kinematic relation v1 = (2/h)(u1 - u0) - v0)."""
+    n = a_mat.shape[0]
+    return (2.0 / h) * a_mat[:, :n] + a_mat[:, n:]
+
+
+def _assemble_covariance(cov, u_cov, xpw, g_u, g_v, h):
+    """``Phi P Phi^T + Gamma Gamma^T`` from the displacement rows ``X_u`` of Phi, given
+    ``u_cov = X_u P X_u^T`` and ``xpw = X_u P W^T``: the velocity rows are ``Phi_v = (2/h) X_u - W``,
+    ``W = [(2/h) I, I]``, so every block follows without forming Phi.
     These block formulas assume a symmetric ``P``; the result is symmetrized so that rounding cannot feed
     an antisymmetric part (which they would propagate unstably) into the next step."""
-    n = a_mat.shape[0]
-    a_u, a_v = a_mat[:, :n], a_mat[:, n:]  # X_u P[:, :n], X_u P[:, n:]
-    xpw = (2.0 / h) * a_u + a_v  # X_u P W^T
+    n = u_cov.shape[0]
     wpw = (4.0 / h**2) * cov[:n, :n] + (2.0 / h) * (cov[:n, n:] + cov[n:, :n]) + cov[n:, n:]
     p_uu = u_cov + g_u @ g_u.T
     p_vu = (2.0 / h) * u_cov - xpw.T + g_v @ g_u.T  # Phi_v P Phi_u^T + Gamma_v Gamma_u^T
     p_vv = (4.0 / h**2) * u_cov - (2.0 / h) * (xpw + xpw.T) + wpw + g_v @ g_v.T
     new_cov = jnp.block([[p_uu, p_vu.T], [p_vu, p_vv]])
     return 0.5 * (new_cov + new_cov.T)
+
+
+@jax.custom_jvp
+def _quadratic_forms(x_u, cov, h):
+    """``(X_u P X_u^T, X_u P W^T)`` for the displacement rows ``X_u`` (n, 2n) of Phi and a symmetric ``P``
+    (2n, 2n): the two dense products of the covariance update (``X_u P``, then ``(X_u P) X_u^T``).
+
+    The derivative rule refers to ``X_u`` and ``P`` only, never to ``X_u P``: the checkpointed reverse pass
+    then skips both products when it recomputes the step, and its transpose costs four products of the size
+    of ``X_u P`` or smaller (autodiff of the plain products: recomputing them, then five).
+    ``P`` symmetric: the recursion keeps it exactly so (each step is symmetrized)."""
+    a_mat = x_u @ cov
+    return a_mat @ x_u.T, _times_w(a_mat, h)
+
+
+def _quadratic_forms_jvp(primals, tangents):
+    x_u, cov, h = primals
+    dx, dcov, dh = (None if isinstance(t, SymbolicZero) else t for t in tangents)
+    n = x_u.shape[0]
+    u_cov, xpw = _quadratic_forms(x_u, cov, h)
+    dxp = jnp.zeros_like(x_u) if dx is None else dx @ cov  # dX P
+    da = dxp if dcov is None else dxp + x_u @ dcov  # d(X P)
+    du = da @ x_u.T + x_u @ dxp.T  # d(X P X^T) = d(X P) X^T + X P dX^T, P = P^T
+    dxpw = _times_w(da, h)  # d(X P W^T) at fixed h
+    if dh is not None:  # dW = [d(2/h) I, 0]; a constant time step (the usual case) costs nothing here
+        dxpw = dxpw + (-2.0 / h**2) * dh * (x_u @ cov[:, :n])
+    return (u_cov, xpw), (du, dxpw)
+
+
+_quadratic_forms.defjvp(_quadratic_forms_jvp, symbolic_zeros=True)
+
+
+@jax.custom_jvp
+def _congruence(x, cov):
+    """``x P x^T`` for a symmetric ``P`` (2n, 2n) and a few rows ``x`` (m, 2n), m << 2n. The derivative rule
+    uses the symmetry of ``P`` and keeps ``x P`` (m x 2n) for the checkpointed reverse pass, so that reverse
+    mode needs no product with ``P`` (autodiff's transpose takes one)."""
+    return (x @ cov) @ x.T
+
+
+@_congruence.defjvp
+def _congruence_jvp(primals, tangents):
+    x, cov = primals
+    dx, dcov = tangents
+    xp = checkpoint_name(x @ cov, _COVARIANCE_NAME)
+    dxp = dx @ xp.T  # dx P x^T (= (x P dx^T)^T)
+    return xp @ x.T, dxp + dxp.T + (x @ dcov) @ x.T
 
 
 def _varying_snapshot(system: System, t) -> Snapshot:
@@ -532,7 +589,8 @@ def _moment_step_constant(
     """
     n, nc = system.n_dof, system.n_contacts
     s0, mean, cov = carry.snap, carry.mean, carry.cov
-    s1 = _varying_snapshot(system, t1)
+    # kept by the checkpointed reverse pass: the model's time functions are not evaluated again there
+    s1 = checkpoint_name(_varying_snapshot(system, t1), _COVARIANCE_NAME)
     noise, v_noise = integrator.noise_matrices(system, s0, s1, h)
     x, a_inv = prop.x, prop.a_inv
     if nc:
@@ -547,7 +605,7 @@ def _moment_step_constant(
         proj = g1.T @ jnp.concatenate([g_a, m_a[:, None], v1], axis=1)  # G1^T [Gamma_a, m_a, A^-1 G1]
         gn, coupling = proj[:, : -1 - nc], proj[:, -nc:]
         # the contacts' covariance needs G1^T X_a P only (nc rows), not X_a P itself
-        cov_c = (gx @ cov) @ gx.T + gn @ gn.T
+        cov_c = _congruence(gx, cov) + gn @ gn.T
         data = _StepData(coupling, proj[:, -1 - nc], cov_c, s1.contact_inputs, clearance)
         z1, terms, info = _solve_fixed_point(system, carry.z, data, criterion, rtol, max_iter)
         lin1 = terms.lin
@@ -566,10 +624,9 @@ def _moment_step_constant(
         inv_g = a_inv @ jnp.concatenate([noise, (s0.load + s1.load)[:, None]], axis=1)
         x_u, g_u = x, inv_g[:, :-1]
         u_mean = x @ mean + inv_g[:, -1]
-    a_mat = x_u @ cov  # X_u P
-    u_cov = a_mat @ x_u.T  # X_u P X_u^T
+    u_cov, xpw = _quadratic_forms(x_u, cov, h)  # X_u P X_u^T, X_u P W^T
     g_v = (2.0 / h) * g_u + v_noise
-    new_cov = _assemble_covariance(cov, a_mat, u_cov, g_u, g_v, h)
+    new_cov = _assemble_covariance(cov, u_cov, xpw, g_u, g_v, h)
     new_mean = jnp.concatenate([u_mean, (2.0 / h) * (u_mean - mean[:n]) - mean[n:]])
     return _Carry(new_mean, new_cov, s1, z1, lin1), info
 
@@ -616,8 +673,10 @@ def solve_moments(
             ``False`` the flags are returned in the result (``converged``, ``iterations``, ``residual``).
         checkpoint: rematerialize each saved block in reverse mode: the state is kept once per saved block,
             plus, per step, the fixed point's solution and its tangent rule's contact-space quantities (about
-            6 nc^2 + 16 nc numbers), so that the rematerialization repeats neither the iterations nor that
-            algebra. With ``save_every = 1`` each rematerialized step and its transpose form one loop body;
+            6 nc^2 + 16 nc numbers), the step-end snapshot, the contact rows of ``X_a P`` (2 n nc) and, with
+            observables, ``C(t)`` and ``C(t) P`` (2 n n_obs), so that the rematerialization repeats neither the
+            iterations, nor that algebra, nor (when K and C are constant) the covariance update's dense
+            products. With ``save_every = 1`` each rematerialized step and its transpose form one loop body;
             longer blocks also stack each step's residuals for the block's reverse loop, which costs more
             (``benchmarks/bench_planetary.py`` times both).
         observables: optional :class:`pgtjax.Observables` ``y = C(t) u`` whose mean and standard deviation
@@ -740,7 +799,8 @@ def _solve_moments_jit(
         worst = _FixedPointInfo(jnp.max(infos.iterations), jnp.max(infos.residual), jnp.all(infos.converged))
         return _record(system, c, worst, t0 + dt * (block_index + 1) * save_every, observables, cov_index)
 
-    policy = jax.checkpoint_policies.save_only_these_names(_FIXED_POINT_NAME) if checkpoint else None
+    names = (_FIXED_POINT_NAME, _COVARIANCE_NAME)
+    policy = jax.checkpoint_policies.save_only_these_names(*names) if checkpoint else None
     _, saved = saved_scan(
         step, record, carry, first, n_blocks=n_blocks, save_every=save_every, remat_policy=policy
     )

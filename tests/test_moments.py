@@ -357,3 +357,47 @@ def test_bad_fixed_point_settings_raise():
         pg.solve_moments(system, dt=0.01, n_steps=4, rtol=0.0)
     with pytest.raises(ValueError, match="max_iter"):
         pg.solve_moments(system, dt=0.01, n_steps=4, max_iter=0)
+
+
+def test_derivative_rules_of_the_covariance_products_equal_autodiff_of_the_plain_products():
+    """The covariance update's two hand-written derivative rules (``_quadratic_forms``: X P X^T and X P W^T;
+    ``_congruence``: x P x^T) against forward- and reverse-mode autodiff of the plain matrix products, for a
+    symmetric P, with and without a time-step tangent, and under jit with a Python-float step."""
+    import jax
+
+    from pgtjax._linearization import _congruence, _quadratic_forms
+
+    rng = np.random.default_rng(11)
+    n, m = 6, 3
+    x = jnp.asarray(rng.standard_normal((n, 2 * n)))
+    p = rng.standard_normal((2 * n, 2 * n))
+    p = jnp.asarray(p @ p.T)
+    rows = jnp.asarray(rng.standard_normal((m, 2 * n)))
+    h = jnp.asarray(0.013)
+
+    def plain_forms(x, p, h):
+        a = x @ p
+        return a @ x.T, (2.0 / h) * a[:, :n] + a[:, n:]
+
+    def plain_congruence(y, p):
+        return (y @ p) @ y.T
+
+    sym = rng.standard_normal((2 * n, 2 * n))
+    tangents = (jnp.asarray(rng.standard_normal((n, 2 * n))), jnp.asarray(sym + sym.T), jnp.asarray(0.7))
+
+    def close(got, want):
+        for g, w in zip(jax.tree.leaves(got), jax.tree.leaves(want)):
+            assert g.dtype == jnp.float64
+            np.testing.assert_allclose(g, w, rtol=0, atol=1e-13 * float(jnp.max(jnp.abs(w))))
+
+    close(jax.jvp(_quadratic_forms, (x, p, h), tangents), jax.jvp(plain_forms, (x, p, h), tangents))
+    cotangents = (jnp.asarray(rng.standard_normal((n, n))), jnp.asarray(rng.standard_normal((n, n))))
+    close(jax.vjp(_quadratic_forms, x, p, h)[1](cotangents), jax.vjp(plain_forms, x, p, h)[1](cotangents))
+    # a Python-float step (not differentiated: its tangent is a symbolic zero), under jit
+    loss = lambda f: lambda x, p: jnp.sum(jnp.sin(f(x, p, 0.013)[0]) + f(x, p, 0.013)[1] ** 2)  # noqa: E731
+    close(jax.jit(jax.grad(loss(_quadratic_forms), (0, 1)))(x, p), jax.grad(loss(plain_forms), (0, 1))(x, p))
+
+    row_tangents = (tangents[0][:m], tangents[1])
+    close(jax.jvp(_congruence, (rows, p), row_tangents), jax.jvp(plain_congruence, (rows, p), row_tangents))
+    bar = jnp.asarray(rng.standard_normal((m, m)))
+    close(jax.vjp(_congruence, rows, p)[1](bar), jax.vjp(plain_congruence, rows, p)[1](bar))
