@@ -67,7 +67,9 @@ from ._system import (
 )
 
 _FIXED_POINT_NAME = "sl_fixed_point"
-_COVARIANCE_NAME = "sl_covariance_product"  # X_u P, kept by the checkpointed reverse pass
+# small per-step values kept by the checkpointed reverse pass so that it need not redo the covariance update:
+# the step-end snapshot, the contact rows x P and the observables' C(t) and C(t) P
+_COVARIANCE_NAME = "sl_covariance_inputs"
 _DENSE_PHI_MAX_DOF = 16  # below this size the covariance update forms Phi explicitly (overhead-bound regime)
 
 
@@ -526,7 +528,7 @@ def _quadratic_forms(x_u, cov, h):
 
     The derivative rule refers to ``X_u`` and ``P`` only, never to ``X_u P``: the checkpointed reverse pass
     then skips both products when it recomputes the step, and its transpose costs four products of the size
-    of ``X_u P`` or smaller (autodiff of the plain products: recomputing them, then five).
+    of ``X_u P`` or smaller (autodiff of the plain products recomputes both, then transposes each: six).
     ``P`` symmetric: the recursion keeps it exactly so (each step is symmetrized)."""
     a_mat = x_u @ cov
     return a_mat @ x_u.T, _times_w(a_mat, h)
