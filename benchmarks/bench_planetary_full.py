@@ -4,7 +4,9 @@ and SL 2,000 times, the contact-point observables), i.e. the SL and MC part of `
 start (compilation included) with the process's peak resident memory. The SL-vs-MC agreement of the run is
 recorded with it.
 
-Usage: python benchmarks/bench_planetary_full.py [--samples 100000] [--chunk-size 5000]
+Monte Carlo runs on one JAX device per core, as in ``pgtjax run`` (``--cpu-devices 1``: one device).
+
+Usage: python benchmarks/bench_planetary_full.py [--samples 100000] [--chunk-size 5000] [--cpu-devices N]
 Writes benchmarks/results/planetary_full.json. Takes minutes (about 5 on the 2-core development machine).
 """
 
@@ -17,6 +19,7 @@ import time
 import jax
 from _common import write
 
+import pgtjax as pg
 from pgtjax.models import planetary as pm
 from pgtjax.studies import planetary as study
 
@@ -27,7 +30,9 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--samples", type=int, default=100_000)
     ap.add_argument("--chunk-size", type=int, default=5000)
+    ap.add_argument("--cpu-devices", type=int, default=None, help="JAX CPU devices (default: one per core)")
     args = ap.parse_args()
+    devices = pg.use_cpu_cores(args.cpu_devices)  # before any JAX computation
     p = pm.default_params()
     start = time.perf_counter()
     result = study.run_study(p, n_samples=args.samples, key=jax.random.key(0), chunk_size=args.chunk_size)
@@ -37,7 +42,7 @@ def main():
     print(
         f"SL + MC of {args.samples} samples over one carrier period ({result.settings['n_steps']} steps): "
         f"{wall:.1f} s wall including compilation, peak RSS {rss_gb:.2f} GB; MC stepped in "
-        f"{result.mc.propagation} coordinates"
+        f"{result.mc.propagation} coordinates on {devices} device(s)"
     )
     print(
         f"SL vs MC: {100 * e['fraction_of_dof_time_points_within_3_se']:.2f} % of (DOF, time) points within 3 s.e."
@@ -45,8 +50,10 @@ def main():
     path = write(
         "planetary_full",
         dict(
-            command=f"python benchmarks/bench_planetary_full.py --samples {args.samples} --chunk-size {args.chunk_size}",
+            command=f"python benchmarks/bench_planetary_full.py --samples {args.samples} --chunk-size {args.chunk_size}"
+            + (f" --cpu-devices {args.cpu_devices}" if args.cpu_devices else ""),
             samples=args.samples,
+            devices=len(jax.local_devices()),
             chunk_size=args.chunk_size,
             steps=result.settings["n_steps"],
             dt_s=result.dt,

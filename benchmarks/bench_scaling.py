@@ -1,12 +1,19 @@
 """Cost against size: Monte Carlo time and peak memory against the sample count (gear pair and planetary), and SL +
 recursion and Monte Carlo time of the planetary model against the number of ring elements and of planets, with
-the exponents of least-squares fits in log-log. Writes benchmarks/results/scaling.json and scaling.png.
+the exponents of least-squares fits in log-log; and the gear pair's Monte Carlo against what a competent user would
+write instead (benchmarks/_peers.py: NumPy vectorized over samples, numba with np.random on one thread and on every
+core, numba with NumPy's Generator, diffrax's Heun and ShARK at the step that matches Newmark's noise-free
+accuracy), timed alternately in the same run after each NumPy and numba peer's statistics were checked equal to
+pgtjax's when fed pgtjax's normals. Writes benchmarks/results/scaling.json and scaling.png.
 
-Every point: compile time apart (first call), then the median of ``--repeats`` calls. Peak memory: each sample
-count runs in a fresh process, which reports its peak resident set size (``ru_maxrss``), so that one size's
-allocations cannot hide another's.
+Monte Carlo runs on one JAX device per core (``pgtjax.use_cpu_cores()``, ``pgtjax --cpu-devices``), except the
+model sizes: they run in a process of their own on one device, since this script's planetary Monte Carlo hung
+three times there on two devices (docs/performance.md). Every point: compile time apart (first call), then the
+median of ``--repeats`` calls. Peak memory: each sample count runs in a fresh
+process, which reports its peak resident set size (``ru_maxrss``), so that one size's allocations cannot hide
+another's.
 
-Usage: python benchmarks/bench_scaling.py [--quick] [--repeats 3]
+Usage: python benchmarks/bench_scaling.py [--quick] [--repeats 3] [--no-peers]
 """
 
 from __future__ import annotations
@@ -25,6 +32,7 @@ import numpy as np
 
 GEAR_STEPS, PLANETARY_STEPS = 1000, 500
 SL_STEPS, MC_SAMPLES, MC_STEPS = 1000, 2000, 500
+PEER_SAMPLES, PEER_STEPS, PEER_SAVE_EVERY = 20_000, 2_000, 100  # the issue's side-by-side size
 
 
 def _median_time(fn, repeats):
@@ -44,6 +52,8 @@ def _samples_point(model: str, n_samples: int, repeats: int) -> dict:
     import jax
 
     import pgtjax as pg
+
+    pg.use_cpu_cores()
     from pgtjax.models import gear_pair as gp
     from pgtjax.models import planetary as pm
 
@@ -119,6 +129,56 @@ def _model_sizes(repeats: int, elements, planets) -> dict:
     return out
 
 
+def _peers(repeats: int, quick: bool) -> dict:
+    """The gear pair's Monte Carlo in pgtjax and its peers: correctness first, then timed alternately."""
+    import _peers
+
+    from pgtjax.models import gear_pair as gp
+
+    system = gp.build()
+    check = _peers.check_against_pgtjax(system, 1e-5)
+    for name, diff in check.items():
+        print(
+            f"peer {name}: statistics fed pgtjax's normals differ from pgtjax's by {max(diff.values()):.1e}"
+        )
+        assert max(diff.values()) < 1e-9, (name, diff)
+    n_samples, n_steps = (2000, 500) if quick else (PEER_SAMPLES, PEER_STEPS)
+    matched, diffrax_steps = {}, {}
+    try:
+        import diffrax
+    except ImportError:
+        print("diffrax is not installed: its peers are skipped (pip install -e '.[bench]')")
+    else:
+        solvers = {"Heun": diffrax.Heun(), "ShARK": diffrax.ShARK()}
+        matched = _peers.matched_diffrax_step(system, h=1e-5, n_steps=n_steps, solvers=solvers)
+        for name, m in matched.items():
+            print(
+                f"diffrax {name}: {m['steps_per_newmark_step']} steps per Newmark step for the noise-free "
+                f"accuracy of Newmark ({m['error']:.2e} against {m['newmark_error']:.2e}, relative)"
+            )
+            diffrax_steps[name] = (solvers[name], m["steps_per_newmark_step"])
+    rows = _peers.time_gear_pair(
+        system,
+        h=1e-5,
+        n_samples=n_samples,
+        n_steps=n_steps,
+        save_every=PEER_SAVE_EVERY,
+        rounds=repeats,
+        diffrax_steps=diffrax_steps,
+    )
+    for name, row in rows.items():
+        print(f"gear pair MC, {name:45s} {row['ns_per_sample_step']:6.1f} ns/sample-step", flush=True)
+    return dict(
+        n_samples=n_samples,
+        n_steps=n_steps,
+        save_every=PEER_SAVE_EVERY,
+        numba_version=_peers.numba.__version__ if _peers.numba is not None else None,
+        check_max_relative_difference=check,
+        diffrax_matched_accuracy=matched,
+        runs=rows,
+    )
+
+
 def _exponent(x, y) -> float:
     """Slope of the least-squares line through (log x, log y)."""
     return float(np.polyfit(np.log(np.asarray(x, float)), np.log(np.asarray(y, float)), 1)[0])
@@ -131,7 +191,9 @@ def _figure(data: dict, path: Path) -> None:
     import matplotlib.pyplot as plt
 
     fits = data["exponents"]
-    fig, axes = plt.subplots(1, 4, figsize=(16, 4.2), constrained_layout=True)
+    peers = data.get("peers")
+    n_panels = 5 if peers else 4
+    fig, axes = plt.subplots(1, n_panels, figsize=(4 * n_panels, 4.2), constrained_layout=True)
     for model, marker in (("gear_pair", "o"), ("planetary", "s")):
         rows = data["samples"][model]
         n = [r["n_samples"] for r in rows]
@@ -160,9 +222,27 @@ def _figure(data: dict, path: Path) -> None:
         ax.set_xticks(x, [str(v) for v in x])
         ax.xaxis.set_minor_locator(matplotlib.ticker.NullLocator())
         ax.set(xlabel=label, ylabel="time per step", title=f"planetary model against {label}")
-    for ax in axes:
+    for ax in axes[:4]:
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=8)
+    if peers:
+        ax = axes[4]
+        names = list(peers["runs"])
+        values = [peers["runs"][k]["ns_per_sample_step"] for k in names]
+        colors = ["C0" if k.startswith("pgtjax") else "C7" for k in names]
+        ax.barh(range(len(names)), values, color=colors)
+        ax.set_yticks(range(len(names)), [k.replace(", ", ",\n", 1) for k in names], fontsize=7)
+        ax.invert_yaxis()
+        for y, v in enumerate(values):
+            ax.text(v, y, f" {v:.1f}", va="center", fontsize=7)
+        ax.set_xscale("log")  # diffrax is 50 times slower than the rest: linear bars would hide them
+        ax.set_xlim(0.5 * min(values), 3.0 * max(values))
+        ax.set(
+            xlabel="ns per sample-step (median, log scale)",
+            title=f"gear pair MC, {peers['n_samples']:,} x {peers['n_steps']:,}",
+        )
+        ax.title.set_fontsize(9)
+        ax.grid(True, axis="x", alpha=0.3)
     fig.savefig(path, dpi=200)
     plt.close(fig)
 
@@ -172,8 +252,18 @@ def main():
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--quick", action="store_true", help="small sizes (a check of the script)")
     parser.add_argument("--figure-only", action="store_true", help="redraw scaling.png from scaling.json")
+    parser.add_argument("--no-peers", action="store_true", help="skip the NumPy and numba peers")
     parser.add_argument("--point", nargs=3, metavar=("MODEL", "SAMPLES", "OUT"), help=argparse.SUPPRESS)
+    parser.add_argument("--models", metavar="OUT", help=argparse.SUPPRESS)
     args = parser.parse_args()
+    import pgtjax as pg
+
+    if args.models:  # the model sizes in a process of their own, on one CPU device (module docstring)
+        pg.use_cpu_cores(1)
+        sizes = ([18, 36], [3, 4]) if args.quick else ([18, 36, 72], [3, 4, 5, 6])
+        Path(args.models).write_text(json.dumps(_model_sizes(args.repeats, *sizes)))
+        return
+    pg.use_cpu_cores()  # before any JAX computation: one device per core (pgtjax --cpu-devices)
     if args.point:
         model, n, out = args.point
         Path(out).write_text(json.dumps(_samples_point(model, int(n), args.repeats)))
@@ -185,10 +275,8 @@ def main():
         return
     if args.quick:
         counts = {"gear_pair": [1000, 4000], "planetary": [500, 1000]}
-        elements, planets = [18, 36], [3, 4]
     else:
         counts = {"gear_pair": [10**3, 10**4, 10**5, 10**6], "planetary": [10**3, 10**4, 10**5]}
-        elements, planets = [18, 36, 72], [3, 4, 5, 6]
     from _common import RESULTS, write
 
     scratch = RESULTS / ".scaling-point.json"
@@ -215,7 +303,11 @@ def main():
                 f"ns/sample-step), peak {row['peak_rss_mb']:7.0f} MB",
                 flush=True,
             )
-    models = _model_sizes(args.repeats, elements, planets)
+    peers = None if args.no_peers else _peers(args.repeats, args.quick)
+    cmd = [sys.executable, __file__, "--repeats", str(args.repeats), "--models", str(scratch)]
+    subprocess.run(cmd + (["--quick"] if args.quick else []), check=True)
+    models = json.loads(scratch.read_text())
+    scratch.unlink()
     for key, label in (("ring_elements", "n_elements"), ("planets", "n_planets")):
         for r in models[key]:
             print(
@@ -253,9 +345,11 @@ def main():
             mc_steps=MC_STEPS,
             chunk_size=5000,
         ),
+        cpu_devices=dict(samples_and_peers=pg.use_cpu_cores(), models=1),
         samples=samples,
         models=models,
         exponents=fits,
+        peers=peers,
     )
     path = write("scaling", data)
     _figure(data, RESULTS / "scaling.png")

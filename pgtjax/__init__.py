@@ -36,6 +36,7 @@ from ._newmark import (
 from ._newmark import (
     NewmarkBridge as NewmarkBridge,
 )
+from ._parallel import use_cpu_cores as use_cpu_cores
 from ._results import (
     MomentResult as MomentResult,
 )

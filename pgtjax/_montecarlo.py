@@ -106,6 +106,19 @@ def _check_histogram_times(histogram_times, histograms, t0, duration, save_inter
     return values
 
 
+def _symmetric_square_root(p0: np.ndarray) -> np.ndarray:
+    """``F = V sqrt(L) V^T`` (2n, 2n) with ``F F^T = p0``, or (2n, 0) for ``p0 = 0``: the factor each sample's
+    initial state is drawn with (``x0 = mean + F z``). Unlike ``V sqrt(L)`` it does not depend on LAPACK's
+    choice of eigenvector signs, nor of the basis of a repeated eigenvalue; both can flip under a
+    rounding-level change of ``p0`` (another thread count or BLAS), which then drew other samples from the
+    same distribution. This factor moves continuously with ``p0``. Rounding-level negative eigenvalues
+    count as zero."""
+    lam, vec = np.linalg.eigh(p0)
+    if not np.any(lam > 0.0):
+        return np.zeros((p0.shape[0], 0))
+    return (vec * np.sqrt(np.maximum(lam, 0.0))[None, :]) @ vec.T
+
+
 def quantity_names(system: System, observables: Observables | None = None) -> list[str]:
     """Names of the per-sample quantities MC records: ``u:<dof>``, ``v:<dof>``, ``delta:<contact>``,
     ``force:<contact>`` and ``obs:<observable>`` (the keys for ``histograms``)."""
@@ -410,9 +423,7 @@ def monte_carlo(
         init_factor = jnp.zeros((2 * n, 0))
     else:
         p0 = np.asarray(check_initial_covariance(system, initial_covariance))
-        lam, vec = np.linalg.eigh(0.5 * (p0 + p0.T))
-        keep = lam > 1e-14 * max(lam.max(), 1e-300)
-        init_factor = jnp.asarray(vec[:, keep] * np.sqrt(lam[keep])[None, :])
+        init_factor = jnp.asarray(_symmetric_square_root(0.5 * (p0 + p0.T)))
     names = quantity_names(system, observables)
     if histograms is not None and not isinstance(histograms, Mapping):
         raise ValueError(

@@ -3,6 +3,9 @@ and design batches alike."""
 
 from __future__ import annotations
 
+import os
+import re
+
 import jax
 import numpy as np
 
@@ -28,3 +31,64 @@ def local_devices(devices=None) -> list:
 def device_mesh(devices, axis: str) -> jax.sharding.Mesh:
     """A one-axis mesh over ``devices``."""
     return jax.sharding.Mesh(np.array(devices), (axis,))
+
+
+def _available_cores() -> int:
+    try:
+        return len(os.sched_getaffinity(0))  # the cores this process may run on (a job's allocation)
+    except AttributeError:  # pragma: no cover - macOS, Windows
+        return os.cpu_count() or 1
+
+
+def use_cpu_cores(n: int | None = None) -> int:
+    """Make JAX's CPU platform ``n`` devices (default: the cores this process may run on), so that Monte
+    Carlo and design batches, which are sharded over ``jax.local_devices()``, keep every core busy: XLA runs
+    one device's batch on about one core. Only the CPU platform changes (a GPU process keeps its GPUs as
+    local devices); single-device work is unaffected.
+
+    Call it right after ``import jax`` / ``import pgtjax``, before any JAX computation: the device count is
+    fixed when JAX starts. Later, ``n=None`` leaves the devices as they are and ``n`` different from the
+    count in force is a ``ValueError``. A device count forced through ``XLA_FLAGS``
+    (``--xla_force_host_platform_device_count``) is respected when ``n`` is None. Returns the number of CPU
+    devices in force (or that will be).
+
+    The statistics of a run do not depend on the device count (to rounding), but a checkpoint records it:
+    resume with the same count.
+
+    Known problem (docs/performance.md): one benchmark script that ran the planetary Monte Carlo on two CPU
+    devices hung three times at the same point, with both of XLA's intra-op threads waiting inside LAPACK's
+    batched LU for work queued to themselves. It was never reproduced in isolation. If a run on several
+    CPU devices stops using the CPU, interrupt it and run it again on one device (a checkpoint resumes only
+    with the device count it was written with).
+    """
+    if n is not None and (isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 1):
+        raise ValueError(f"`n` (CPU devices) must be a whole number >= 1 or None, got {n!r}")
+    if _backends_started():
+        current = len(jax.devices("cpu"))
+        if n is not None and n != current:
+            raise ValueError(
+                f"cannot make JAX's CPU platform {n} devices: JAX has started with {current}; call "
+                "pgtjax.use_cpu_cores before any JAX computation (or restart the kernel)"
+            )
+        return current
+    forced = re.search(r"--xla_force_host_platform_device_count=(\d+)", os.environ.get("XLA_FLAGS", ""))
+    if n is None and forced:
+        n = int(forced.group(1))
+    else:
+        n = _available_cores() if n is None else int(n)
+        jax.config.update("jax_num_cpu_devices", n)
+    return n
+
+
+def _backends_started() -> bool:
+    """Whether JAX has started its backends (after which the CPU device count is fixed)."""
+    try:
+        from jax._src import xla_bridge  # JAX offers no public test of this
+
+        return bool(xla_bridge.backends_are_initialized())
+    except (ImportError, AttributeError):  # pragma: no cover - a JAX without it: ask the config instead
+        try:
+            jax.config.update("jax_num_cpu_devices", jax.config.jax_num_cpu_devices)
+            return False
+        except RuntimeError:
+            return True

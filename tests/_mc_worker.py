@@ -5,6 +5,7 @@ Usage: python3 _mc_worker.py sharded OUT
        python3 _mc_worker.py process PROCESS_ID N_PROCESSES PORT OUT
        python3 _mc_worker.py killed CHECKPOINT
        python3 _mc_worker.py killed-designs CHECKPOINT
+       python3 _mc_worker.py cores N OUT
 """
 
 import os
@@ -84,6 +85,12 @@ def main():
             designs_one=np.asarray(designs_one.value),
             designs_four=np.asarray(designs_four.value),
         )
+    elif mode == "cores":  # pgtjax.use_cpu_cores before any computation: N devices (0: one per core)
+        n = int(sys.argv[2]) or None
+        in_force = pg.use_cpu_cores(n)
+        assert len(jax.local_devices()) == in_force and jax.local_devices()[0].platform == "cpu"
+        assert in_force == (n or len(os.sched_getaffinity(0)))
+        np.savez(sys.argv[3], devices=in_force, **arrays(run(chunk_size=40)))
     elif mode == "process":
         process_id, n_processes, port, out = int(sys.argv[2]), int(sys.argv[3]), sys.argv[4], sys.argv[5]
         jax.distributed.initialize(

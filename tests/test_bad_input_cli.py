@@ -30,6 +30,8 @@ def _design_file(tmp_path, text):
 
 # (id, argv (a function of tmp_path), text the one-line error must contain)
 CASES = [
+    ("cpu devices zero", lambda d: ["--cpu-devices", "0", "run"], "--cpu-devices"),
+    ("cpu devices a word", lambda d: ["--cpu-devices", "two", "run"], "--cpu-devices"),
     ("huge seed", lambda d: ["gear-pair", "--seed", "99999999999999999999999"], "--seed"),
     ("planetary huge seed", lambda d: ["planetary", "--seed", "1e3"], "--seed"),
     ("dts zero", lambda d: ["gear-pair-step", "--dts", "0"], "--dts"),

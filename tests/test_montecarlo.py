@@ -295,6 +295,48 @@ def test_eigen_coordinates_reproduce_the_physical_coordinate_scheme(scheme):
     assert float(eig.unconverged) == float(phys.unconverged) == 0.0
 
 
+@pytest.mark.parametrize("widths", [(1, 1, 6), (1, 2, 20)])  # fused sum of outer products; matrix product
+def test_outer_products_of_the_eigen_step_equal_the_matrix_product(widths):
+    from pgtjax._eigenbasis import _outer_products
+
+    rng = np.random.default_rng(5)
+    columns = [jnp.asarray(rng.standard_normal((37, w))) for w in widths]
+    rows = [jnp.asarray(rng.standard_normal((w, 12))) for w in widths]
+    got = jax.jit(_outer_products)(columns, rows)
+    expected = np.concatenate([np.asarray(c) for c in columns], 1) @ np.concatenate(
+        [np.asarray(r) for r in rows]
+    )
+    assert got.shape == (37, 12) and got.dtype == jnp.float64
+    np.testing.assert_allclose(np.asarray(got), expected, rtol=0, atol=1e-13 * np.max(np.abs(expected)))
+
+
+def test_initial_draws_move_only_at_rounding_level_with_the_initial_covariance():
+    """A covariance with repeated eigenvalues, changed at rounding level (as another thread count or BLAS
+    changes a computed one), draws the same initial states to rounding: the factor is the symmetric square
+    root, not LAPACK's eigenvectors, whose basis of a repeated eigenvalue such a change rotates freely."""
+    from pgtjax.models import gear_pair
+
+    system = gear_pair.build()
+    p0 = np.diag(np.r_[np.full(3, 1e-10), np.full(3, 1e-4)])  # two triple eigenvalues
+    rng = np.random.default_rng(11)
+    noise = rng.standard_normal((6, 6))
+    nudged = p0 + 1e-16 * np.abs(p0).max() * (noise + noise.T)
+    kw = dict(n_samples=64, key=KEY, dt=1e-5, n_steps=2, save_every=1, progress=False)
+    a = pg.monte_carlo(system, initial_covariance=p0, **kw)
+    b = pg.monte_carlo(system, initial_covariance=nudged, **kw)
+    for name in ("mean_u", "std_u", "mean_v", "std_v"):
+        x, y = (
+            np.asarray(getattr(a, name))[0],
+            np.asarray(getattr(b, name))[0],
+        )  # the initial draws' statistics
+        assert x.dtype == np.float64
+        np.testing.assert_allclose(y, x, rtol=1e-9, atol=1e-9 * np.max(np.abs(x)), err_msg=name)
+    # and the draws have the asked covariance: std of the sample within 4 standard errors of sqrt(diag p0)
+    expected = np.sqrt(np.diag(p0))
+    got = np.r_[np.asarray(a.std_u)[0], np.asarray(a.std_v)[0]]
+    assert np.all(np.abs(got / expected - 1.0) < 4.0 / np.sqrt(2 * 63))
+
+
 def test_eigen_coordinates_refused_where_they_cannot_be_used(monkeypatch):
     import pgtjax._eigenbasis as eigenbasis
 

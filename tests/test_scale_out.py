@@ -70,6 +70,29 @@ def test_sharded_over_four_devices_equals_one_device(tmp_path, reference):
     assert data["designs_four"].shape == (5,)
 
 
+def test_use_cpu_cores_shards_over_one_device_per_core_with_the_same_statistics(tmp_path, reference):
+    """``pg.use_cpu_cores()`` (what the CLI calls first) makes one CPU device per available core; the run is
+    split over them and its statistics equal the one-device run's (an explicit count: the XLA_FLAGS test)."""
+    out = tmp_path / "cores.npz"
+    code, err = _finish(_worker("cores", 0, out))
+    assert code == 0, err
+    data = dict(np.load(out))
+    assert int(data["devices"]) == len(os.sched_getaffinity(0))
+    _assert_same(data, reference, 1e-12)
+
+
+def test_use_cpu_cores_after_jax_started_keeps_the_devices_or_says_why():
+    import pgtjax as pg
+
+    assert pg.use_cpu_cores() == len(jax.devices("cpu")) == 1  # started: left as it is
+    assert pg.use_cpu_cores(1) == 1
+    with pytest.raises(ValueError, match="before any JAX computation"):
+        pg.use_cpu_cores(2)
+    for bad in (0, -1, 1.5, True, "2"):
+        with pytest.raises(ValueError, match="`n`"):
+            pg.use_cpu_cores(bad)
+
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -176,3 +199,13 @@ def test_cli_resume_after_an_interruption_gives_the_same_outputs(tmp_path, monke
     assert "--processes" in capsys.readouterr().err
     assert main(["run", *"--coordinator 127.0.0.1:1 --processes 2 --process-id 2".split()]) == 2
     assert "--process-id" in capsys.readouterr().err
+
+
+def test_cli_cpu_devices_option(capsys):
+    """``pgtjax --cpu-devices N`` is applied before any JAX computation; in a process where JAX has started
+    (as here) a different count is refused with one line, and the count in force is accepted."""
+    from pgtjax.cli import main
+
+    assert main(["--cpu-devices", "2", "gear-pair-modal"]) == 2
+    assert "cannot make JAX's CPU platform 2 devices" in capsys.readouterr().err
+    assert main(["--cpu-devices", "1", "gear-pair-modal", "--json"]) == 0

@@ -19,7 +19,9 @@ from pathlib import Path
 
 from .._failure import SolverError
 from .._files import interrupted_message
+from .._parallel import use_cpu_cores
 from . import back_to_back, design, gear_pair, planetary, ring
+from ._types import positive_int
 
 __all__ = ["build_parser", "main"]
 
@@ -29,6 +31,15 @@ def build_parser() -> argparse.ArgumentParser:
         prog="pgtjax",
         description="Differentiable stochastic dynamics of planetary gear trains: statistical linearization, "
         "stochastic Newmark moments and Monte Carlo on JAX.",
+    )
+    parser.add_argument(
+        "--cpu-devices",
+        type=positive_int,
+        default=None,
+        metavar="N",
+        help="on a CPU, shard Monte Carlo samples and design batches over N JAX devices, one core each "
+        "(default: JAX's one CPU device, or the count forced in XLA_FLAGS). Faster, but see 'Scaling out' "
+        "in the README: a run on several CPU devices has hung",
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     planetary.register(sub)
@@ -72,6 +83,8 @@ def main(argv=None) -> int:
     main_thread = threading.current_thread() is threading.main_thread()  # handlers live there only
     previous = signal.signal(signal.SIGINT, interrupted) if main_thread else None
     try:
+        if args.cpu_devices is not None:  # before any JAX computation (docs/performance.md: opt-in, why)
+            use_cpu_cores(args.cpu_devices)
         if out is not None:
             _check_writable(out)
         return args.func(args)

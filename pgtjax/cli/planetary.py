@@ -143,6 +143,12 @@ def _run_planetary(args) -> int:
     )
     if jax.process_count() > 1:
         print(f"Monte Carlo split over {jax.process_count()} processes ({len(jax.devices())} devices in all)")
+    elif args.samples:
+        local = jax.local_devices()
+        kind = local[0].platform.upper()
+        hint = " (`pgtjax --cpu-devices N COMMAND` shards it over N)" if local[0].platform == "cpu" else ""
+        where = f"sharded over {len(local)} {kind} devices" if len(local) > 1 else f"on 1 {kind} device"
+        print(f"Monte Carlo {where}{hint}")
     start = time.perf_counter()
     step = lambda msg: print(f"[{time.perf_counter() - start:7.1f} s] {msg}", flush=True)  # noqa: E731
     step("SL + moment recursion" + (" and Monte Carlo" if args.samples else ""))
