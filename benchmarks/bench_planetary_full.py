@@ -4,7 +4,8 @@ and SL 2,000 times, the contact-point observables), i.e. the SL and MC part of `
 start (compilation included) with the process's peak resident memory. The SL-vs-MC agreement of the run is
 recorded with it.
 
-Monte Carlo runs on one JAX device per core, as in ``pgtjax run`` (``--cpu-devices 1``: one device).
+Monte Carlo runs on JAX's one CPU device, as ``pgtjax run`` does; ``--cpu-devices N`` shards it over N (as
+``pgtjax --cpu-devices N run --full``).
 
 Usage: python benchmarks/bench_planetary_full.py [--samples 100000] [--chunk-size 5000] [--cpu-devices N]
 Writes benchmarks/results/planetary_full.json. Takes minutes (about 5 on the 2-core development machine).
@@ -30,9 +31,11 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--samples", type=int, default=100_000)
     ap.add_argument("--chunk-size", type=int, default=5000)
-    ap.add_argument("--cpu-devices", type=int, default=None, help="JAX CPU devices (default: one per core)")
+    ap.add_argument("--cpu-devices", type=int, default=None, help="JAX CPU devices (default: JAX's one)")
     args = ap.parse_args()
-    devices = pg.use_cpu_cores(args.cpu_devices)  # before any JAX computation
+    if args.cpu_devices is not None:
+        pg.use_cpu_cores(args.cpu_devices)  # before any JAX computation
+    devices = len(jax.local_devices())
     p = pm.default_params()
     start = time.perf_counter()
     result = study.run_study(p, n_samples=args.samples, key=jax.random.key(0), chunk_size=args.chunk_size)

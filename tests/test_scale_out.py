@@ -71,8 +71,8 @@ def test_sharded_over_four_devices_equals_one_device(tmp_path, reference):
 
 
 def test_use_cpu_cores_shards_over_one_device_per_core_with_the_same_statistics(tmp_path, reference):
-    """``pg.use_cpu_cores()`` (what the CLI calls first) makes one CPU device per available core; the run is
-    split over them and its statistics equal the one-device run's (an explicit count: the XLA_FLAGS test)."""
+    """``pg.use_cpu_cores()`` (what ``pgtjax --cpu-devices`` calls) makes one CPU device per available core; the
+    run is split over them and its statistics equal the one-device run's."""
     out = tmp_path / "cores.npz"
     code, err = _finish(_worker("cores", 0, out))
     assert code == 0, err
@@ -84,7 +84,8 @@ def test_use_cpu_cores_shards_over_one_device_per_core_with_the_same_statistics(
 def test_use_cpu_cores_after_jax_started_keeps_the_devices_or_says_why():
     import pgtjax as pg
 
-    assert pg.use_cpu_cores() == len(jax.devices("cpu")) == 1  # started: left as it is
+    assert len(jax.devices("cpu")) == 1  # JAX started here first (this test alone, too): one device
+    assert pg.use_cpu_cores() == 1  # started: left as it is
     assert pg.use_cpu_cores(1) == 1
     with pytest.raises(ValueError, match="before any JAX computation"):
         pg.use_cpu_cores(2)
@@ -206,6 +207,7 @@ def test_cli_cpu_devices_option(capsys):
     (as here) a different count is refused with one line, and the count in force is accepted."""
     from pgtjax.cli import main
 
+    assert len(jax.devices("cpu")) == 1  # JAX started here first (this test alone, too)
     assert main(["--cpu-devices", "2", "gear-pair-modal"]) == 2
     assert "cannot make JAX's CPU platform 2 devices" in capsys.readouterr().err
     assert main(["--cpu-devices", "1", "gear-pair-modal", "--json"]) == 0
