@@ -247,6 +247,45 @@ def _figure(data: dict, path: Path) -> None:
     plt.close(fig)
 
 
+def _models_in_subprocess(repeats: int, quick: bool, scratch: Path) -> dict:
+    """The model sizes, measured in a process of their own on one CPU device (module docstring)."""
+    cmd = [sys.executable, __file__, "--repeats", str(repeats), "--models", str(scratch)]
+    subprocess.run(cmd + (["--quick"] if quick else []), check=True)
+    models = json.loads(scratch.read_text())
+    scratch.unlink()
+    for key, label in (("ring_elements", "n_elements"), ("planets", "n_planets")):
+        for r in models[key]:
+            print(
+                f"{label} {r[label]:3d} ({r['n_dof']:4d} DOFs): SL {r['sl_ms_per_step']:.3f} ms/step, "
+                f"MC {r['mc_ns_per_sample_step']:.0f} ns/sample-step",
+                flush=True,
+            )
+    return models
+
+
+def _fits(samples: dict, models: dict) -> dict:
+    """Log-log slopes of time and memory against the sample count, and of time against model size."""
+    fits = {}
+    for model, rows in samples.items():
+        n = [r["n_samples"] for r in rows]
+        fits[f"{model}_mc_time_vs_samples"] = _exponent(n, [r["median_s"] for r in rows])
+        fits[f"{model}_peak_memory_vs_samples"] = _exponent(n, [r["peak_rss_mb"] for r in rows])
+    for key, label in (("ring_elements", "n_elements"), ("planets", "n_planets")):
+        rows = models[key]
+        x = [r[label] for r in rows]
+        fits[f"sl_time_per_step_vs_{key}"] = _exponent(x, [r["sl_ms_per_step"] for r in rows])
+        fits[f"mc_time_per_sample_step_vs_{key}"] = _exponent(x, [r["mc_ns_per_sample_step"] for r in rows])
+        fits[f"sl_time_per_step_vs_dofs_over_{key}"] = _exponent(
+            [r["n_dof"] for r in rows], [r["sl_ms_per_step"] for r in rows]
+        )
+        fits[f"mc_time_per_sample_step_vs_dofs_over_{key}"] = _exponent(
+            [r["n_dof"] for r in rows], [r["mc_ns_per_sample_step"] for r in rows]
+        )
+    for name, value in fits.items():
+        print(f"exponent {name}: {value:.2f}")
+    return fits
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=3)
@@ -255,6 +294,11 @@ def main():
     parser.add_argument("--no-peers", action="store_true", help="skip the NumPy, numba and diffrax peers")
     parser.add_argument(
         "--peers-only", action="store_true", help="run the peers alone and replace them in scaling.json"
+    )
+    parser.add_argument(
+        "--models-only",
+        action="store_true",
+        help="run the model sizes alone and replace them (and the exponents) in scaling.json",
     )
     parser.add_argument("--point", nargs=3, metavar=("MODEL", "SAMPLES", "OUT"), help=argparse.SUPPRESS)
     parser.add_argument("--models", metavar="OUT", help=argparse.SUPPRESS)
@@ -266,7 +310,8 @@ def main():
         sizes = ([18, 36], [3, 4]) if args.quick else ([18, 36, 72], [3, 4, 5, 6])
         Path(args.models).write_text(json.dumps(_model_sizes(args.repeats, *sizes)))
         return
-    pg.use_cpu_cores()  # before any JAX computation: one device per core (pgtjax --cpu-devices)
+    if not args.models_only:  # (the model sizes run in a one-device subprocess of their own)
+        pg.use_cpu_cores()  # before any JAX computation: one device per core (pgtjax --cpu-devices)
     if args.point:
         model, n, out = args.point
         Path(out).write_text(json.dumps(_samples_point(model, int(n), args.repeats)))
@@ -284,6 +329,19 @@ def main():
             data.pop(key)
         data["peers"] = _peers(args.repeats, args.quick)
         data["peers_command"] = "python benchmarks/bench_scaling.py " + " ".join(sys.argv[1:])
+        path = write("scaling", data)
+        _figure(data, RESULTS / "scaling.png")
+        print(f"wrote {path} and {RESULTS / 'scaling.png'}")
+        return
+    if args.models_only:  # the other sections kept as measured, the model sizes measured again now
+        from _common import RESULTS, write
+
+        data = json.loads((RESULTS / "scaling.json").read_text())
+        for key in ("machine", "date"):
+            data.pop(key)
+        data["models"] = _models_in_subprocess(args.repeats, args.quick, RESULTS / ".scaling-models.json")
+        data["exponents"] = _fits(data["samples"], data["models"])
+        data["models_command"] = "python benchmarks/bench_scaling.py " + " ".join(sys.argv[1:])
         path = write("scaling", data)
         _figure(data, RESULTS / "scaling.png")
         print(f"wrote {path} and {RESULTS / 'scaling.png'}")
@@ -319,35 +377,8 @@ def main():
                 flush=True,
             )
     peers = None if args.no_peers else _peers(args.repeats, args.quick)
-    cmd = [sys.executable, __file__, "--repeats", str(args.repeats), "--models", str(scratch)]
-    subprocess.run(cmd + (["--quick"] if args.quick else []), check=True)
-    models = json.loads(scratch.read_text())
-    scratch.unlink()
-    for key, label in (("ring_elements", "n_elements"), ("planets", "n_planets")):
-        for r in models[key]:
-            print(
-                f"{label} {r[label]:3d} ({r['n_dof']:4d} DOFs): SL {r['sl_ms_per_step']:.3f} ms/step, "
-                f"MC {r['mc_ns_per_sample_step']:.0f} ns/sample-step",
-                flush=True,
-            )
-    fits = {}
-    for model, rows in samples.items():
-        n = [r["n_samples"] for r in rows]
-        fits[f"{model}_mc_time_vs_samples"] = _exponent(n, [r["median_s"] for r in rows])
-        fits[f"{model}_peak_memory_vs_samples"] = _exponent(n, [r["peak_rss_mb"] for r in rows])
-    for key, label in (("ring_elements", "n_elements"), ("planets", "n_planets")):
-        rows = models[key]
-        x = [r[label] for r in rows]
-        fits[f"sl_time_per_step_vs_{key}"] = _exponent(x, [r["sl_ms_per_step"] for r in rows])
-        fits[f"mc_time_per_sample_step_vs_{key}"] = _exponent(x, [r["mc_ns_per_sample_step"] for r in rows])
-        fits[f"sl_time_per_step_vs_dofs_over_{key}"] = _exponent(
-            [r["n_dof"] for r in rows], [r["sl_ms_per_step"] for r in rows]
-        )
-        fits[f"mc_time_per_sample_step_vs_dofs_over_{key}"] = _exponent(
-            [r["n_dof"] for r in rows], [r["mc_ns_per_sample_step"] for r in rows]
-        )
-    for name, value in fits.items():
-        print(f"exponent {name}: {value:.2f}")
+    models = _models_in_subprocess(args.repeats, args.quick, scratch)
+    fits = _fits(samples, models)
     data = dict(
         description="cost against size; exponents are least-squares slopes in log-log",
         command="python benchmarks/bench_scaling.py " + " ".join(sys.argv[1:]),

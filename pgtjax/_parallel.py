@@ -3,8 +3,10 @@ and design batches alike."""
 
 from __future__ import annotations
 
+import importlib.metadata
 import os
 import re
+import warnings
 
 import jax
 import numpy as np
@@ -55,11 +57,14 @@ def use_cpu_cores(n: int | None = None) -> int:
     The statistics of a run do not depend on the device count (to rounding), but a checkpoint records it:
     resume with the same count.
 
-    Known problem (docs/performance.md): one benchmark script that ran the planetary Monte Carlo on two CPU
-    devices hung three times at the same point, with both of XLA's intra-op threads waiting inside LAPACK's
-    batched LU for work queued to themselves. It was never reproduced in isolation. If a run on several
-    CPU devices stops using the CPU, interrupt it and run it again on one device (a checkpoint resumes only
-    with the device count it was written with).
+    Known problem (docs/performance.md): jaxlib 0.10.0 to 0.11.0 split a batched LAPACK call (an LU,
+    Cholesky or eigendecomposition of stacked matrices, as a design batch's SL makes) over XLA's intra-op
+    thread pool and block the calling pool thread until the pieces are done; with several CPU devices every
+    thread of that pool can end up waiting, and the process hangs (seen three times in one of our benchmarks).
+    jaxlib 0.11.1 and later (and 0.9 and earlier) run such calls on the calling thread; with an affected jaxlib
+    a count above one gives a ``RuntimeWarning``. If a run on several CPU devices stops using the CPU,
+    interrupt it and run it again on one device (a checkpoint resumes only with the device count it was
+    written with).
     """
     if n is not None and (isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 1):
         raise ValueError(f"`n` (CPU devices) must be a whole number >= 1 or None, got {n!r}")
@@ -77,7 +82,34 @@ def use_cpu_cores(n: int | None = None) -> int:
     else:
         n = _available_cores() if n is None else int(n)
         jax.config.update("jax_num_cpu_devices", n)
+    if n > 1 and lapack_batches_wait_on_pool():
+        warnings.warn(
+            f"jaxlib {_jaxlib_version_text()} runs batched LAPACK calls on XLA's intra-op thread pool and "
+            f"blocks a pool thread while it waits for them; with {n} CPU devices a run can hang "
+            "(docs/performance.md). jaxlib >= 0.11.1 or <= 0.9.2 does not; one device is safe with any.",
+            RuntimeWarning,
+            stacklevel=2,
+        )
     return n
+
+
+def _jaxlib_version_text() -> str:
+    try:
+        return importlib.metadata.version("jaxlib")
+    except importlib.metadata.PackageNotFoundError:  # pragma: no cover - a source build of JAX
+        return jax.__version__
+
+
+def lapack_batches_wait_on_pool(version: str | None = None) -> bool:
+    """Whether this jaxlib (or ``version``) is one of 0.10.0-0.11.0, whose CPU LAPACK kernels split a batch
+    over XLA's intra-op pool and wait for it from a pool thread (upstream jax commit 859992407d turned this
+    off in open-source builds after 0.11.0)."""
+    text = _jaxlib_version_text() if version is None else version
+    parts = re.match(r"(\d+)\.(\d+)\.(\d+)", text)
+    if parts is None:
+        return False
+    release = tuple(int(p) for p in parts.groups())
+    return (0, 10, 0) <= release < (0, 11, 1)
 
 
 def _backends_started() -> bool:

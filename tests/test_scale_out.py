@@ -16,6 +16,7 @@ from _mc_worker import DESIGNS, FIELDS, arrays, run
 from test_design import chain_problem
 
 from pgtjax import design as pd
+from pgtjax._parallel import lapack_batches_wait_on_pool
 
 WORKER = str(Path(__file__).with_name("_mc_worker.py"))
 TIMEOUT_S = 600
@@ -79,6 +80,26 @@ def test_use_cpu_cores_shards_over_one_device_per_core_with_the_same_statistics(
     data = dict(np.load(out))
     assert int(data["devices"]) == len(os.sched_getaffinity(0))
     _assert_same(data, reference, 1e-12)
+    # several devices on a jaxlib whose batched LAPACK calls wait on XLA's pool: the user is warned
+    affected = lapack_batches_wait_on_pool() and int(data["devices"]) > 1
+    assert ("RuntimeWarning" in err and "can hang" in err) == affected, err
+
+
+@pytest.mark.parametrize(
+    "version, affected",
+    [
+        ("0.9.2", False),
+        ("0.10.0", True),
+        ("0.10.2", True),
+        ("0.11.0", True),
+        ("0.11.1", False),
+        ("0.12.0.1", False),
+    ],
+)
+def test_jaxlib_versions_whose_lapack_batches_wait_on_the_thread_pool(version, affected):
+    """jax commit bfd9e1fbd3 (in 0.10.0) split batched LAPACK calls over XLA's intra-op pool; 859992407d
+    (after the 0.11.0 tag) turned it off in open-source builds (docs/performance.md)."""
+    assert lapack_batches_wait_on_pool(version) is affected
 
 
 def test_use_cpu_cores_after_jax_started_keeps_the_devices_or_says_why():
@@ -211,3 +232,21 @@ def test_cli_cpu_devices_option(capsys):
     assert main(["--cpu-devices", "2", "gear-pair-modal"]) == 2
     assert "cannot make JAX's CPU platform 2 devices" in capsys.readouterr().err
     assert main(["--cpu-devices", "1", "gear-pair-modal", "--json"]) == 0
+
+
+def test_cli_cpu_devices_warns_in_one_line_on_an_affected_jaxlib():
+    """In a fresh process ``pgtjax --cpu-devices 2`` starts two devices; on a jaxlib whose batched LAPACK calls
+    wait on XLA's pool the user gets one warning line (not a Python traceback-style warning)."""
+    proc = subprocess.run(
+        [sys.executable, "-m", "pgtjax.cli", "--cpu-devices", "2", "gear-pair-modal", "--json"],
+        env=_env(),
+        capture_output=True,
+        text=True,
+        timeout=TIMEOUT_S,
+    )
+    assert proc.returncode == 0, proc.stderr
+    lines = [line for line in proc.stderr.splitlines() if "can hang" in line]
+    if lapack_batches_wait_on_pool():
+        assert len(lines) == 1 and lines[0].startswith("pgtjax: warning: jaxlib "), proc.stderr
+    else:
+        assert not lines, proc.stderr

@@ -15,6 +15,7 @@ import os
 import signal
 import sys
 import threading
+import warnings
 from pathlib import Path
 
 from .._failure import SolverError
@@ -84,7 +85,11 @@ def main(argv=None) -> int:
     previous = signal.signal(signal.SIGINT, interrupted) if main_thread else None
     try:
         if args.cpu_devices is not None:  # before any JAX computation (docs/performance.md: opt-in, why)
-            use_cpu_cores(args.cpu_devices)
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                use_cpu_cores(args.cpu_devices)
+            for warning in caught:  # one line each, as the CLI's other messages
+                print(f"pgtjax: warning: {warning.message}", file=sys.stderr)
         if out is not None:
             _check_writable(out)
         return args.func(args)
