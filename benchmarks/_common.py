@@ -66,12 +66,14 @@ def timed_interleaved(fns: dict, *args, repeats: int = 3) -> dict:
     return out
 
 
-def write(name: str, payload: dict, machine_info: dict | None = None) -> Path:
+def write(name: str, payload: dict, machine_info: dict | None = None, keep_machine: bool = False) -> Path:
     """``results/<name>.json`` (atomically) with the machine (``machine_info``: measured in another process,
-    e.g. one with forced host devices) and the date."""
+    e.g. one with forced host devices) and the date; ``keep_machine``: the payload's own ``machine`` and
+    ``date`` are kept (a file of which one section was measured again, with its own machine and date)."""
     RESULTS.mkdir(exist_ok=True)
     path = RESULTS / f"{name}.json"
-    payload = dict(machine=machine_info or machine(), date=time.strftime("%Y-%m-%d %H:%M:%S"), **payload)
+    if not keep_machine:
+        payload = dict(machine=machine_info or machine(), date=time.strftime("%Y-%m-%d %H:%M:%S"), **payload)
     # imported here, not at the top: compare_timing.py imports this module with older trees too
     from pgtjax._files import write_text
 

@@ -103,7 +103,8 @@ def main():
 
     import pgtjax as pg
 
-    pg.use_cpu_cores()  # on a CPU: one device per core; a GPU process keeps its GPUs
+    if args.allow_cpu:  # a check on a CPU: one device per core (a GPU process keeps its GPUs either way)
+        pg.use_cpu_cores()
     from _common import write
 
     from pgtjax.models import gear_pair as gp

@@ -13,7 +13,9 @@ median of ``--repeats`` calls. Peak memory: each sample count runs in a fresh
 process, which reports its peak resident set size (``ru_maxrss``), so that one size's allocations cannot hide
 another's.
 
-Usage: python benchmarks/bench_scaling.py [--quick] [--repeats 3] [--no-peers | --peers-only]
+Usage: python benchmarks/bench_scaling.py [--quick] [--repeats 3] [--no-peers | --peers-only | --models-only]
+(``--peers-only`` and ``--models-only`` measure one section again and replace it in scaling.json, with the
+machine and date of that section's run.)
 """
 
 from __future__ import annotations
@@ -310,39 +312,35 @@ def main():
         sizes = ([18, 36], [3, 4]) if args.quick else ([18, 36, 72], [3, 4, 5, 6])
         Path(args.models).write_text(json.dumps(_model_sizes(args.repeats, *sizes)))
         return
+    if args.figure_only:
+        from _common import RESULTS
+
+        _figure(json.loads((RESULTS / "scaling.json").read_text()), RESULTS / "scaling.png")
+        return
+    if (args.peers_only or args.models_only) and args.quick:
+        parser.error(
+            "--quick would replace full-size results in scaling.json: run the whole script with --quick"
+        )
     if not args.models_only:  # (the model sizes run in a one-device subprocess of their own)
         pg.use_cpu_cores()  # before any JAX computation: one device per core (pgtjax --cpu-devices)
     if args.point:
         model, n, out = args.point
         Path(out).write_text(json.dumps(_samples_point(model, int(n), args.repeats)))
         return
-    if args.figure_only:
-        from _common import RESULTS
-
-        _figure(json.loads((RESULTS / "scaling.json").read_text()), RESULTS / "scaling.png")
-        return
-    if args.peers_only:  # the other sections kept as measured, the peers measured again now
-        from _common import RESULTS, write
+    if args.peers_only or args.models_only:  # one section measured again, the others kept as measured
+        from _common import RESULTS, machine, write
 
         data = json.loads((RESULTS / "scaling.json").read_text())
-        for key in ("machine", "date"):
-            data.pop(key)
-        data["peers"] = _peers(args.repeats, args.quick)
-        data["peers_command"] = "python benchmarks/bench_scaling.py " + " ".join(sys.argv[1:])
-        path = write("scaling", data)
-        _figure(data, RESULTS / "scaling.png")
-        print(f"wrote {path} and {RESULTS / 'scaling.png'}")
-        return
-    if args.models_only:  # the other sections kept as measured, the model sizes measured again now
-        from _common import RESULTS, write
-
-        data = json.loads((RESULTS / "scaling.json").read_text())
-        for key in ("machine", "date"):
-            data.pop(key)
-        data["models"] = _models_in_subprocess(args.repeats, args.quick, RESULTS / ".scaling-models.json")
-        data["exponents"] = _fits(data["samples"], data["models"])
-        data["models_command"] = "python benchmarks/bench_scaling.py " + " ".join(sys.argv[1:])
-        path = write("scaling", data)
+        section = "peers" if args.peers_only else "models"
+        if args.peers_only:
+            data["peers"] = _peers(args.repeats, args.quick)
+        else:
+            data["models"] = _models_in_subprocess(args.repeats, False, RESULTS / ".scaling-models.json")
+            data["exponents"] = _fits(data["samples"], data["models"])
+        data[f"{section}_command"] = "python benchmarks/bench_scaling.py " + " ".join(sys.argv[1:])
+        data[f"{section}_machine"] = machine()
+        data[f"{section}_date"] = time.strftime("%Y-%m-%d %H:%M:%S")
+        path = write("scaling", data, keep_machine=True)
         _figure(data, RESULTS / "scaling.png")
         print(f"wrote {path} and {RESULTS / 'scaling.png'}")
         return

@@ -73,14 +73,17 @@ class EigenPropagator(eqx.Module):
         return self.cross.shape[0]
 
     def advance(self, z):
-        """``z -> Lambda z`` for a batch (batch, 2n): elementwise, the 2x2 blocks pairing Re and Im."""
-        out = z * self.scale[None, :]
+        """``z -> Lambda z`` for rows ``z`` (k, 2n), e.g. the contact directions' images (a batch of samples
+        is advanced in two parts, :class:`EigenSampleState`): elementwise, the 2x2 blocks pairing Re and Im."""
+        cut = 2 * self.n_pairs
+        return jnp.concatenate([self.advance_pairs(z[:, :cut]), z[:, cut:] * self.scale[None, cut:]], axis=1)
+
+    def advance_pairs(self, pairs):
+        """The complex pairs' part of :meth:`advance`: ``pairs`` (batch, 2 n_pairs), Re parts then Im parts."""
         m = self.n_pairs
-        if m:
-            re, im = z[:, :m], z[:, m : 2 * m]
-            b = self.cross[None, :]
-            out = out + jnp.concatenate([b * im, -b * re, jnp.zeros_like(z[:, 2 * m :])], axis=1)
-        return out
+        re, im = pairs[:, :m], pairs[:, m:]
+        b = self.cross[None, :]
+        return pairs * self.scale[None, : 2 * m] + jnp.concatenate([b * im, -b * re], axis=1)
 
     def to_physical(self, z):
         """``(u, v)`` of a batch of eigen-coordinates (batch, 2n), each (batch, n)."""
@@ -150,10 +153,24 @@ class EigenSampleState(NamedTuple):
     """A batch of samples in eigen-coordinates. ``y`` (batch, 2n) is the state before the contact forces
     ``force`` (batch, nc) of its time ``t`` are applied: ``z = y - force Q(t)^T`` with ``Q(t) = W^-1 [I; I]
     A^-1 G(t)``. Carrying ``y`` folds the end-of-step force of one step and the start-of-step force of the
-    next (the same forces along the same directions) into one product per step."""
+    next (the same forces along the same directions) into one product per step.
 
-    y: jax.Array
+    ``y`` is kept as its complex pairs' columns and its real eigenvalues' columns: the real part's update
+    reads each column only, so XLA updates it in place; the pairs' 2x2 blocks read each other's columns, and
+    in one array they made XLA write the whole state to a new buffer and copy it back every step."""
+
+    pairs: jax.Array  # y's first 2 n_pairs columns (Re parts, then Im parts), (batch, 2 n_pairs)
+    real: jax.Array  # y's other columns, (batch, 2n - 2 n_pairs)
     force: jax.Array
+
+    @property
+    def y(self):
+        return jnp.concatenate([self.pairs, self.real], axis=1)
+
+
+def _split_state(prop: EigenPropagator, y, force) -> EigenSampleState:
+    cut = 2 * prop.n_pairs
+    return EigenSampleState(y[:, :cut], y[:, cut:], force)
 
 
 def _contact_input(prop: EigenPropagator, snap: Snapshot):
@@ -163,7 +180,7 @@ def _contact_input(prop: EigenPropagator, snap: Snapshot):
 
 def eigen_initial_state(prop: EigenPropagator, u, v, force, snap: Snapshot) -> EigenSampleState:
     """State of a batch at time ``t`` (``snap``) from displacements, velocities and contact forces."""
-    return EigenSampleState(prop.from_physical(u, v) + force @ _contact_input(prop, snap), force)
+    return _split_state(prop, prop.from_physical(u, v) + force @ _contact_input(prop, snap), force)
 
 
 def eigen_physical(prop: EigenPropagator, state: EigenSampleState, snap: Snapshot):
@@ -209,7 +226,7 @@ def eigen_sample_step(
     the end-of-step forces are left in ``y1``.
     """
     h = prop.h
-    columns = [jnp.ones((state.y.shape[0], 1), state.y.dtype)]
+    columns = [jnp.ones((state.real.shape[0], 1), state.real.dtype)]
     rows = [((s0.load + s1.load) @ prop.force_input.T)[None, :]]
     if draws.shape[1]:
         noise, v_noise = integrator.noise_matrices(system, s0, s1, h)
@@ -218,15 +235,18 @@ def eigen_sample_step(
             z_noise = z_noise + (0.5 * h) * (prop.basis_inverse[:, system.n_dof :] @ v_noise)
         columns.append(draws)
         rows.append(z_noise.T)
-    ok = jnp.ones(state.y.shape[0], dtype=bool)
+    ok = jnp.ones(columns[0].shape[0], dtype=bool)
+    if system.n_contacts:
+        q0 = _contact_input(prop, s0)
+        columns.append(state.force)
+        rows.append(-(prop.advance(q0) + q0))
+    cut = 2 * prop.n_pairs
+    pairs = prop.advance_pairs(state.pairs) + _outer_products(columns, [r[:, :cut] for r in rows])
+    real = state.real * prop.scale[None, cut:] + _outer_products(columns, [r[:, cut:] for r in rows])
     if not system.n_contacts:
-        y1 = prop.advance(state.y) + _outer_products(columns, rows)
-        return EigenSampleState(y1, state.force), ok
-    q0 = _contact_input(prop, s0)
-    columns.append(state.force)
-    rows.append(-(prop.advance(q0) + q0))
-    y1 = prop.advance(state.y) + _outer_products(columns, rows)
+        return EigenSampleState(pairs, real, state.force), ok
     g1 = s1.direction
-    delta_lin = y1 @ (prop.basis[: system.n_dof].T @ g1)
+    to_contacts = prop.basis[: system.n_dof].T @ g1  # (2n, nc): contact deflections per eigen-coordinate
+    delta_lin = pairs @ to_contacts[:cut] + real @ to_contacts[cut:]
     force, ok = solve_contact_forces(system, delta_lin, g1.T @ prop.a_inv @ g1, s1.contact_inputs)
-    return EigenSampleState(y1, force), ok
+    return EigenSampleState(pairs, real, force), ok

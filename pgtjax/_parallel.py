@@ -58,11 +58,12 @@ def use_cpu_cores(n: int | None = None) -> int:
     resume with the same count.
 
     Known problem (docs/performance.md): jaxlib 0.10.0 to 0.11.0 split a batched LAPACK call (an LU,
-    Cholesky or eigendecomposition of stacked matrices, as a design batch's SL makes) over XLA's intra-op
-    thread pool and block the calling pool thread until the pieces are done; with several CPU devices every
-    thread of that pool can end up waiting, and the process hangs (seen three times in one of our benchmarks).
+    Cholesky or eigendecomposition of stacked matrices, as a ``vmap``-ed design batch's SL makes) over XLA's
+    intra-op thread pool and block the calling pool thread until the pieces are done. When every thread of
+    that pool waits so, the process hangs: two devices each in such a call, or two such calls of one program.
+    It was seen three times in one of our benchmarks on two devices, and in a ``vmap`` of 14 designs on one.
     jaxlib 0.11.1 and later (and 0.9 and earlier) run such calls on the calling thread; with an affected jaxlib
-    a count above one gives a ``RuntimeWarning``. If a run on several CPU devices stops using the CPU,
+    on a machine of several cores, a count above one gives a ``RuntimeWarning``. If a run stops using the CPU,
     interrupt it and run it again on one device (a checkpoint resumes only with the device count it was
     written with).
     """
@@ -82,15 +83,22 @@ def use_cpu_cores(n: int | None = None) -> int:
     else:
         n = _available_cores() if n is None else int(n)
         jax.config.update("jax_num_cpu_devices", n)
-    if n > 1 and lapack_batches_wait_on_pool():
-        warnings.warn(
-            f"jaxlib {_jaxlib_version_text()} runs batched LAPACK calls on XLA's intra-op thread pool and "
-            f"blocks a pool thread while it waits for them; with {n} CPU devices a run can hang "
-            "(docs/performance.md). jaxlib >= 0.11.1 or <= 0.9.2 does not; one device is safe with any.",
-            RuntimeWarning,
-            stacklevel=2,
-        )
+    if n > 1:
+        warn_if_lapack_batches_can_hang(f"{n} CPU devices", stacklevel=3)
     return n
+
+
+def warn_if_lapack_batches_can_hang(what: str, stacklevel: int = 2) -> None:
+    """A ``RuntimeWarning`` that ``what`` (e.g. "2 CPU devices") can hang this process, where jaxlib splits
+    batched LAPACK calls over an intra-op pool of more than one thread (:func:`lapack_batches_wait_on_pool`)."""
+    if lapack_batches_wait_on_pool() and _available_cores() > 1:  # a one-thread pool never splits a call
+        warnings.warn(
+            f"jaxlib {_jaxlib_version_text()} splits batched LAPACK calls over XLA's thread pool and waits for "
+            f"them from a thread of that pool; with {what} a run can hang (docs/performance.md). jaxlib "
+            ">= 0.11.1 or <= 0.9.2 does not; one CPU device and designs evaluated one at a time avoid it.",
+            RuntimeWarning,
+            stacklevel=stacklevel,
+        )
 
 
 def _jaxlib_version_text() -> str:

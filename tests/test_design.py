@@ -141,6 +141,24 @@ def test_batch_evaluation_equals_one_by_one():
     assert batch.value.dtype == jnp.float64
 
 
+def test_vmapped_batches_equal_one_by_one_and_warn_on_an_affected_jaxlib():
+    """``batch_size`` vmaps the designs (the same values as the one-at-a-time loop); on a jaxlib whose batched
+    LAPACK calls wait on XLA's thread pool, on several cores, the user is warned (docs/performance.md)."""
+    import warnings
+
+    from pgtjax._parallel import _available_cores, lapack_batches_wait_on_pool
+
+    problem = chain_problem(0.01)
+    zs = jnp.array([[0.0, 0.0], [0.5, -0.3], [-1.0, 1.2]])
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        batched = pd.evaluate(problem, zs, batch_size=2)
+    hang_warnings = [w for w in caught if "can hang" in str(w.message)]
+    assert len(hang_warnings) == int(lapack_batches_wait_on_pool() and _available_cores() > 1)
+    assert all(w.filename == __file__ for w in hang_warnings)  # points at the caller's line
+    np.testing.assert_allclose(batched.value, pd.evaluate(problem, zs).value, rtol=1e-13)
+
+
 def test_monte_carlo_check_agrees_with_the_exact_variance():
     problem = chain_problem(0.01, n_steps=40)
     z_opt = jnp.log(jnp.array([np.sqrt(C / 0.01), np.sqrt(C / 0.02)]))  # Log map reference 1

@@ -16,7 +16,7 @@ from .._deterministic import static_equilibrium
 from .._failure import SolverError
 from .._linearization import solve_moments
 from .._montecarlo import monte_carlo
-from .._parallel import device_mesh, local_devices
+from .._parallel import device_mesh, local_devices, warn_if_lapack_batches_can_hang
 from .._system import check_count, validate_time_grid
 from ._objectives import AbstractCost, AbstractObjective, Names, _series, as_objective, check_costs
 from ._variables import DesignSpace
@@ -256,7 +256,8 @@ def evaluate(
     The designs are split over ``devices`` (default all of ``jax.local_devices()``); on each device they run
     one after the other in one compiled loop, or ``vmap``-ed ``batch_size`` at a time (on the 2-core CPU a
     ``vmap`` of 14 planetary designs deadlocked inside XLA's CPU runtime in two of seven runs, so batching is
-    opt-in). ``group_size``: designs per device per compiled call (default: all at once, or 1 with a
+    opt-in: jaxlib 0.10.0-0.11.0 wait on their own thread pool in batched LAPACK calls, and warn here;
+    docs/performance.md). ``group_size``: designs per device per compiled call (default: all at once, or 1 with a
     checkpoint). ``checkpoint``: a ``.npz`` rewritten atomically after every group with the terms so far;
     ``resume=True`` continues from it (same problem, designs and split required)."""
     zs = np.asarray(designs, dtype=np.float64)
@@ -266,6 +267,8 @@ def evaluate(
         raise ValueError("`designs` must be finite")
     if batch_size is not None:
         batch_size = check_count("batch_size", batch_size)
+        if batch_size > 1:
+            warn_if_lapack_batches_can_hang(f"designs vmap-ed {batch_size} at a time", stacklevel=3)
     devices = local_devices(devices)
     n, n_dev = zs.shape[0], len(devices)
     path = checkpoint_file(checkpoint, resume)
