@@ -146,7 +146,8 @@ def _run_planetary(args) -> int:
     elif args.samples:
         local = jax.local_devices()
         kind = local[0].platform.upper()
-        hint = " (`pgtjax --cpu-devices N COMMAND` shards it over N)" if local[0].platform == "cpu" else ""
+        one_cpu = local[0].platform == "cpu" and len(local) == 1
+        hint = " (`pgtjax --cpu-devices N COMMAND` shards it over N)" if one_cpu else ""
         where = f"sharded over {len(local)} {kind} devices" if len(local) > 1 else f"on 1 {kind} device"
         print(f"Monte Carlo {where}{hint}")
     start = time.perf_counter()
