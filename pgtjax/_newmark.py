@@ -276,68 +276,155 @@ def solve_contacts(delta_lin, coupling, k, b, law, *, tol=1e-12, max_iter=50):
     return d, err <= tol
 
 
-_PATTERN_TABLE_MAX_CONTACTS = 8  # 2^8 Jacobian inverses per step at most
+_TABLE_MAX_CONTACTS = 6  # up to here every pattern's inverse is formed once per solve (2^6 = 64)
+_MAX_ODD_PATTERNS = 16  # other patterns than the majority's inverted per Newton step before the fallback
+
+
+def _pattern_inverses(coupling, k_on, active):
+    """Inverses of the Newton Jacobians ``I + S diag(k_on * active)`` (m, nc, nc) of contact patterns
+    ``active`` (m, nc), 1.0 where a contact is closed: one formula for every route of
+    :func:`solve_contacts_batch`."""
+    eye = jnp.eye(coupling.shape[0], dtype=coupling.dtype)
+    return jnp.linalg.inv(eye[None] + coupling[None] * (active * k_on[None, :])[:, None, :])
+
+
+def _apply_inverses(inverses, r):
+    """Rows ``inverses @ r`` for ``inverses`` (batch or 1, nc, nc) and ``r`` (batch, nc): column sums, which
+    beat a batched matrix-vector product on CPU."""
+    return sum(inverses[:, :, j] * r[:, j : j + 1] for j in range(r.shape[1]))
+
+
+def _all_patterns(nc: int, dtype):
+    """Every contact pattern (2^nc, nc), pattern i closing the contacts of i's set bits, and those bits."""
+    bits = 2 ** jnp.arange(nc)
+    return ((jnp.arange(2**nc)[:, None] & bits[None, :]) > 0).astype(dtype), bits
+
+
+def _table_newton_step(coupling, k_on, nc, dtype):
+    """Newton steps from the inverses of all 2^nc patterns, formed once per solve (few contacts)."""
+    patterns, bits = _all_patterns(nc, dtype)
+    table = _pattern_inverses(coupling, k_on, patterns)
+
+    def step(r, active):
+        return _apply_inverses(table[jnp.sum(jnp.where(active > 0, bits[None, :], 0), axis=1)], r)
+
+    return step
+
+
+def _majority_newton_step(coupling, k_on, majority):
+    """Newton steps ``J(p_i)^-1 r_i`` for many contacts; ``majority`` (nc,) is the batch's most frequent
+    pattern at the start of the solve, inverted once and applied to every sample. If some samples have
+    another pattern, up to ``_MAX_ODD_PATTERNS`` of those patterns are found (one pass over the batch each)
+    and inverted; with more, the inverses of all 2^nc patterns or one per sample, whichever are fewer."""
+    majority_step = _pattern_inverses(coupling, k_on, majority[None])
+
+    def step(r, active):
+        batch, nc = r.shape
+        shared = _apply_inverses(majority_step, r)
+        odd = jnp.any(active != majority[None, :], axis=1)
+
+        def every_pattern(shared):
+            if 2**nc <= batch:
+                return _table_newton_step(coupling, k_on, nc, r.dtype)(r, active)
+            return _apply_inverses(_pattern_inverses(coupling, k_on, active), r)
+
+        def odd_patterns(shared):
+            def find_next(state):  # the first sample not yet matched gives the next pattern
+                patterns, index, left, found = state
+                pattern = active[jnp.argmax(left)]
+                match = left & jnp.all(active == pattern[None, :], axis=1)
+                return (
+                    patterns.at[found].set(pattern),
+                    jnp.where(match, found, index),
+                    left & ~match,
+                    found + 1,
+                )
+
+            def more_to_find(state):
+                _, _, left, found = state
+                return jnp.any(left) & (found < _MAX_ODD_PATTERNS)
+
+            start = (
+                jnp.zeros((_MAX_ODD_PATTERNS, nc), r.dtype),
+                jnp.zeros(batch, jnp.int32),
+                odd,
+                jnp.array(0),
+            )
+            patterns, index, left, _ = jax.lax.while_loop(more_to_find, find_next, start)
+
+            def few(shared):  # unused rows of `patterns` stay all-open: an identity Jacobian, harmless
+                own = _apply_inverses(_pattern_inverses(coupling, k_on, patterns)[index], r)
+                return jnp.where(odd[:, None], own, shared)
+
+            return jax.lax.cond(jnp.any(left), every_pattern, few, shared)
+
+        return jax.lax.cond(jnp.any(odd), odd_patterns, lambda shared: shared, shared)
+
+    return step
 
 
 def solve_contacts_batch(delta_lin, coupling, k, b, law, *, tol=1e-12, max_iter=50):
     """:func:`solve_contacts` for a batch ``delta_lin`` (batch, nc) sharing ``coupling``, ``k`` and ``b``.
 
     For a law with on/off stiffness (backlash) the Newton Jacobian ``I + S diag(k * active)`` depends only on
-    the contact pattern, so the inverses of all 2^nc patterns are formed once (nc <= 8) and each sample's
-    Newton step is a table look-up and an nc x nc product; otherwise each sample runs its own Newton solve.
-    For a piecewise-affine law (``law.affine_piece``) the first Newton step, taken from ``delta_lin``, is
-    exact for every sample whose contacts all stay in their affine piece; the residual iteration then runs
-    only if some sample of the batch changed piece. Returns ``(delta, converged)`` of shapes (batch, nc) and
-    (batch,).
+    the contact pattern. Up to ``_TABLE_MAX_CONTACTS`` contacts the inverses of all 2^nc patterns are formed
+    once and each sample looks its pattern's up; with more, the batch's majority pattern is inverted once and
+    the samples with another pattern get their own (:func:`_majority_newton_step`). Both routes form and apply
+    a pattern's inverse alike, and a sample stops iterating once it has converged, so its result depends on
+    the route and the rest of the batch only at rounding level. A law
+    without on/off stiffness runs a Newton solve per sample. For a piecewise-affine law (``law.affine_piece``)
+    the first Newton step, taken from ``delta_lin``, is exact for every sample whose contacts all stay in their
+    affine piece; the residual iteration then runs only if some sample of the batch changed piece. Returns
+    ``(delta, converged)`` of shapes (batch, nc) and (batch,).
     """
-    nc = delta_lin.shape[1]
-    if not law.on_off_stiffness or nc > _PATTERN_TABLE_MAX_CONTACTS:
+    if not law.on_off_stiffness:
         return jax.vmap(lambda dl: solve_contacts(dl, coupling, k, b, law, tol=tol, max_iter=max_iter))(
             delta_lin
         )
-    bits = 2 ** jnp.arange(nc)
-    patterns = ((jnp.arange(2**nc)[:, None] & bits[None, :]) > 0).astype(delta_lin.dtype)  # (2^nc, nc)
-    eye = jnp.eye(nc, dtype=delta_lin.dtype)
+    batch, nc = delta_lin.shape
     k_on = law.closed_stiffness(k, b)  # an on/off law's stiffness is 0 or this
-    inverses = jnp.linalg.inv(eye[None] + coupling[None] * (patterns * k_on[None, :])[:, None, :])
     scale = _residual_scale(delta_lin, b[None, :])
     k_rows = _batched(k)
+
+    def pattern(d):
+        return (law.stiffness(d, k_rows, b[None, :]) > 0.0).astype(d.dtype)
+
+    if nc <= _TABLE_MAX_CONTACTS:
+        pattern_step = _table_newton_step(coupling, k_on, nc, delta_lin.dtype)
+    else:
+        majority = (2 * jnp.sum(pattern(delta_lin), axis=0) > batch).astype(delta_lin.dtype)
+        pattern_step = _majority_newton_step(coupling, k_on, majority)
 
     def residual(d):
         return d + law.force(d, k_rows, b[None, :]) @ coupling.T - delta_lin
 
     def newton_step(d, r):
-        index = jnp.sum(jnp.where(law.stiffness(d, k_rows, b[None, :]) > 0.0, bits[None, :], 0), axis=1)
-        table = inverses[index]  # (batch, nc, nc); column sums beat a batched matrix-vector product on CPU
-        return d - sum(table[:, :, j] * r[:, j : j + 1] for j in range(nc))
+        return d - pattern_step(r, pattern(d))
 
-    def body(state):
-        d, r, it, _ = state
-        d = newton_step(d, r)
+    def body(state):  # a sample that has converged stops, so its result does not depend on the batch
+        d, r, it, moving = state
+        d = jnp.where(moving[:, None], newton_step(d, r), d)
         r = residual(d)
-        return d, r, it + 1, jnp.max(jnp.abs(r) / scale, axis=1)
+        return d, r, it + 1, moving & (jnp.max(jnp.abs(r) / scale, axis=1) > tol)
 
     def cond(state):
-        _, _, it, err = state
-        return (it < max_iter) & jnp.any(err > tol)
+        _, _, it, moving = state
+        return (it < max_iter) & jnp.any(moving)
 
-    def iterate(d):
+    def iterate(d, done):
+        """Newton steps from ``d`` for the samples not ``done`` until each has converged."""
         r = residual(d)
-        err = jnp.max(jnp.abs(r) / scale, axis=1)
-        d, _, _, err = jax.lax.while_loop(cond, body, (d, r, jnp.array(0), err))
-        return d, err <= tol
+        moving = ~done & (jnp.max(jnp.abs(r) / scale, axis=1) > tol)
+        d, r, _, _ = jax.lax.while_loop(cond, body, (d, r, jnp.array(0), moving))
+        return d, done | (jnp.max(jnp.abs(r) / scale, axis=1) <= tol)  # a NaN is neither
 
-    r0 = residual(delta_lin)
     piece0 = law.affine_piece(delta_lin, k_rows, b[None, :])
     if piece0 is None:
-        d, _, _, err = jax.lax.while_loop(
-            cond, body, (delta_lin, r0, jnp.array(0), jnp.max(jnp.abs(r0) / scale, axis=1))
-        )
-        return d, err <= tol
-    d1 = newton_step(delta_lin, r0)
+        return iterate(delta_lin, jnp.zeros(batch, dtype=bool))
+    d1 = newton_step(delta_lin, residual(delta_lin))
     same_piece = law.affine_piece(d1, k_rows, b[None, :]) == piece0
     exact = jnp.all(same_piece & jnp.isfinite(d1), axis=1)  # a NaN compares as "in the gap": not exact
-    return jax.lax.cond(jnp.all(exact), lambda d: (d, exact), iterate, d1)
+    return jax.lax.cond(jnp.all(exact), lambda d, exact: (d, exact), iterate, d1, exact)
 
 
 def solve_contact_forces(system: System, delta_lin, coupling, k):

@@ -185,6 +185,83 @@ def test_pattern_table_contact_solve_equals_per_sample_newton():
     assert float(jnp.max(jnp.abs(residual))) < 1e-15
 
 
+def _closed_or_gap_batch(rng, nc, batch, closed_patterns, b):
+    """Contact-free deflections (batch, nc) whose contacts are closed (beyond the clearance) or in the gap
+    by row of ``closed_patterns`` (batch, nc) bool, with margins wide enough that the solve keeps them."""
+    closed = -rng.uniform(3.0, 6.0, (batch, nc)) * b
+    gap = rng.uniform(-0.5, 0.5, (batch, nc)) * b
+    return jnp.asarray(np.where(closed_patterns, closed, gap))
+
+
+@pytest.mark.parametrize(
+    "route, batch",
+    [
+        ("one pattern", 300),
+        ("a few other patterns", 300),
+        ("many patterns, table", 300),
+        ("many, per sample", 200),
+    ],
+)
+def test_majority_pattern_contact_solve_on_every_route(route, batch):
+    """More contacts than the pattern table takes: the batch's majority pattern is inverted once, up to 16
+    other patterns are found and inverted, more fall back to the table of all 2^nc patterns (2^nc <= batch)
+    or to one inverse per sample. Every route agrees with a per-sample Newton solve, and a sample's result is
+    the one it gets alone (a batch of one, its own pattern the majority) up to rounding: 1e-17 here, on
+    deflections of 1e-4 to 6e-3."""
+    from pgtjax._newmark import _MAX_ODD_PATTERNS, _TABLE_MAX_CONTACTS, solve_contacts, solve_contacts_batch
+
+    rng = np.random.default_rng(7)
+    nc = 8
+    assert nc > _TABLE_MAX_CONTACTS and 2**nc > 200 and 2**nc <= 300
+    a = rng.normal(size=(nc, nc))
+    coupling = jnp.asarray(a @ a.T * 1e-5 + 1e-4 * np.eye(nc))  # weak coupling: the margins below hold
+    k = jnp.asarray(rng.uniform(500.0, 1500.0, nc))
+    b = np.full(nc, 1e-3)
+    closed = np.ones((batch, nc), dtype=bool)
+    if route == "a few other patterns":
+        odd = rng.choice(batch, 40, replace=False)
+        closed[odd] = rng.uniform(size=(5, nc))[rng.integers(0, 5, 40)] < 0.5  # 5 distinct patterns at most
+    elif route.startswith("many"):
+        closed = rng.uniform(size=(batch, nc)) < 0.85
+    distinct_odd = {tuple(row) for row in closed if not row.all()}
+    if route == "one pattern":
+        assert not distinct_odd
+    elif route == "a few other patterns":
+        assert 1 <= len(distinct_odd) <= _MAX_ODD_PATTERNS
+    else:
+        assert len(distinct_odd) > _MAX_ODD_PATTERNS and np.mean(closed.all(axis=1)) < 0.5
+    delta_lin = _closed_or_gap_batch(rng, nc, batch, closed, b)
+    law, b = pg.Backlash(), jnp.asarray(b)
+    d_batch, ok_batch = solve_contacts_batch(delta_lin, coupling, k, b, law)
+    d_ref, ok_ref = jax.vmap(lambda dl: solve_contacts(dl, coupling, k, b, law))(delta_lin)
+    assert d_batch.dtype == jnp.float64 and bool(jnp.all(ok_batch)) and bool(jnp.all(ok_ref))
+    np.testing.assert_array_equal(np.abs(np.asarray(d_batch)) > np.asarray(b)[None, :], closed)
+    np.testing.assert_allclose(d_batch, d_ref, rtol=0, atol=1e-16)
+    alone = jax.vmap(lambda dl: solve_contacts_batch(dl[None, :], coupling, k, b, law)[0][0])(delta_lin)
+    np.testing.assert_allclose(d_batch, alone, rtol=0, atol=1e-17)
+
+
+def test_table_and_majority_routes_agree(monkeypatch):
+    """The pattern table (few contacts) and the majority route form and apply a pattern's inverse alike:
+    forcing either route on the same batch, with contacts changing piece, gives the same deflections to
+    rounding (1e-17 on deflections of order 1e-3)."""
+    import pgtjax._newmark as newmark
+
+    rng = np.random.default_rng(8)
+    nc, batch = 5, 400
+    a = rng.normal(size=(nc, nc))
+    coupling = jnp.asarray(a @ a.T * 1e-3 + 1e-3 * np.eye(nc))  # strong coupling: contacts change piece
+    k = jnp.asarray(rng.uniform(500.0, 1500.0, nc))
+    b = jnp.asarray(rng.uniform(0.5e-3, 2e-3, nc))
+    delta_lin = jnp.asarray(rng.normal(scale=3e-3, size=(batch, nc)))
+    d_table, ok_table = newmark.solve_contacts_batch(delta_lin, coupling, k, b, pg.Backlash())
+    monkeypatch.setattr(newmark, "_TABLE_MAX_CONTACTS", 0)
+    d_majority, ok_majority = newmark.solve_contacts_batch(delta_lin, coupling, k, b, pg.Backlash())
+    assert bool(jnp.all(ok_table)) and bool(jnp.all(ok_majority))
+    assert 0.1 < float(jnp.mean(jnp.any(jnp.abs(d_table) < b[None, :], axis=1))) < 0.9
+    np.testing.assert_allclose(d_table, d_majority, rtol=0, atol=1e-17)
+
+
 def test_constant_stiffness_mc_equals_time_function_mc():
     """Monte Carlo with the once-formed contact-free map (constant K) and with the per-step solve (K as a
     function of time) draw the same noise and must give the same statistics up to rounding."""
