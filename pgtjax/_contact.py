@@ -243,10 +243,10 @@ class ContactLaw(eqx.Module):
     only on contact j's arguments): the SL solver's closed-form Newton Jacobian relies on it.
 
     A law whose ``stiffness`` is always either 0 or the stiffness input sets ``on_off_stiffness = True``: Monte
-    Carlo then inverts the contact-space Newton Jacobians of all 2^nc contact patterns once per step instead of
-    once per sample and iteration. Such a law may also implement ``affine_piece`` (piecewise-affine laws): a
-    Newton step that stays inside one affine piece is then exact, which that batched solve checks instead of
-    evaluating the residual.
+    Carlo then inverts the contact-space Newton Jacobians of contact patterns (all 2^nc of them for few
+    contacts, else the batch's majority pattern and the few others present) instead of one per sample and
+    iteration. Such a law may also implement ``affine_piece`` (piecewise-affine laws): a Newton step that stays
+    inside one affine piece is then exact, which that batched solve checks instead of evaluating the residual.
     """
 
     on_off_stiffness: ClassVar[bool] = False

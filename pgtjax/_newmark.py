@@ -305,23 +305,25 @@ def _table_newton_step(coupling, k_on, nc, dtype):
     patterns, bits = _all_patterns(nc, dtype)
     table = _pattern_inverses(coupling, k_on, patterns)
 
-    def step(r, active):
+    def step(r, active, moving=None):
         return _apply_inverses(table[jnp.sum(jnp.where(active > 0, bits[None, :], 0), axis=1)], r)
 
     return step
 
 
 def _majority_newton_step(coupling, k_on, majority):
-    """Newton steps ``J(p_i)^-1 r_i`` for many contacts; ``majority`` (nc,) is the batch's most frequent
-    pattern at the start of the solve, inverted once and applied to every sample. If some samples have
-    another pattern, up to ``_MAX_ODD_PATTERNS`` of those patterns are found (one pass over the batch each)
-    and inverted; with more, the inverses of all 2^nc patterns or one per sample, whichever are fewer."""
+    """Newton steps ``J(p_i)^-1 r_i`` for many contacts. ``majority`` (nc,) closes each contact closed in
+    more than half the samples at the start of the solve (in the usual case the pattern most samples have);
+    it is inverted once and applied to every sample. If some samples still ``moving`` (batch,) have another
+    pattern, up to ``_MAX_ODD_PATTERNS`` of those patterns are found (one pass over the batch each) and
+    inverted; with more, the inverses of all 2^nc patterns or one per sample, whichever are fewer (formed
+    again at each such Newton step). The steps of samples not moving are not used."""
     majority_step = _pattern_inverses(coupling, k_on, majority[None])
 
-    def step(r, active):
+    def step(r, active, moving):
         batch, nc = r.shape
         shared = _apply_inverses(majority_step, r)
-        odd = jnp.any(active != majority[None, :], axis=1)
+        odd = moving & jnp.any(active != majority[None, :], axis=1)
 
         def every_pattern(shared):
             if 2**nc <= batch:
@@ -374,8 +376,8 @@ def solve_contacts_batch(delta_lin, coupling, k, b, law, *, tol=1e-12, max_iter=
     the route and the rest of the batch only at rounding level. A law
     without on/off stiffness runs a Newton solve per sample. For a piecewise-affine law (``law.affine_piece``)
     the first Newton step, taken from ``delta_lin``, is exact for every sample whose contacts all stay in their
-    affine piece; the residual iteration then runs only if some sample of the batch changed piece. Returns
-    ``(delta, converged)`` of shapes (batch, nc) and (batch,).
+    affine piece, and such a sample counts as converged; the others iterate on the residual. Returns
+    ``(delta, converged)`` of shapes (batch, nc) and (batch,); a NaN sample is not converged.
     """
     if not law.on_off_stiffness:
         return jax.vmap(lambda dl: solve_contacts(dl, coupling, k, b, law, tol=tol, max_iter=max_iter))(
@@ -398,12 +400,12 @@ def solve_contacts_batch(delta_lin, coupling, k, b, law, *, tol=1e-12, max_iter=
     def residual(d):
         return d + law.force(d, k_rows, b[None, :]) @ coupling.T - delta_lin
 
-    def newton_step(d, r):
-        return d - pattern_step(r, pattern(d))
+    def newton_step(d, r, moving):
+        return d - pattern_step(r, pattern(d), moving)
 
     def body(state):  # a sample that has converged stops, so its result does not depend on the batch
         d, r, it, moving = state
-        d = jnp.where(moving[:, None], newton_step(d, r), d)
+        d = jnp.where(moving[:, None], newton_step(d, r, moving), d)
         r = residual(d)
         return d, r, it + 1, moving & (jnp.max(jnp.abs(r) / scale, axis=1) > tol)
 
@@ -421,7 +423,7 @@ def solve_contacts_batch(delta_lin, coupling, k, b, law, *, tol=1e-12, max_iter=
     piece0 = law.affine_piece(delta_lin, k_rows, b[None, :])
     if piece0 is None:
         return iterate(delta_lin, jnp.zeros(batch, dtype=bool))
-    d1 = newton_step(delta_lin, residual(delta_lin))
+    d1 = newton_step(delta_lin, residual(delta_lin), jnp.ones(batch, dtype=bool))
     same_piece = law.affine_piece(d1, k_rows, b[None, :]) == piece0
     exact = jnp.all(same_piece & jnp.isfinite(d1), axis=1)  # a NaN compares as "in the gap": not exact
     return jax.lax.cond(jnp.all(exact), lambda d, exact: (d, exact), iterate, d1, exact)
