@@ -281,11 +281,26 @@ _MAX_ODD_PATTERNS = 16  # other patterns than the majority's inverted per Newton
 
 
 def _pattern_inverses(coupling, k_on, active):
-    """Inverses of the Newton Jacobians ``I + S diag(k_on * active)`` (m, nc, nc) of contact patterns
+    """Inverses of the Newton Jacobians ``J = I + S diag(k_on * active)`` (m, nc, nc) of contact patterns
     ``active`` (m, nc), 1.0 where a contact is closed: one formula for every route of
-    :func:`solve_contacts_batch`."""
+    :func:`solve_contacts_batch`.
+
+    Gauss-Jordan elimination in place, without pivoting, vectorized over the patterns: no pivoting is needed
+    because every leading block ``I + S_11 K_1`` of J is nonsingular when S (= G^T K_eff^-1 G) has a positive
+    definite symmetric part, and its pivots are at least 1 when S is symmetric (docs/performance.md). On a
+    CPU the 64 inverses of 6 contacts take about 16 us where a batched LU with its pivot loop took 44 us, in
+    every Monte Carlo step whatever the batch, and the solve makes no LAPACK call (such calls can hang on
+    several devices on jaxlib 0.10). Inverses agree with LAPACK's to rounding (tests)."""
     eye = jnp.eye(coupling.shape[0], dtype=coupling.dtype)
-    return jnp.linalg.inv(eye[None] + coupling[None] * (active * k_on[None, :])[:, None, :])
+    inverse = eye[None] + coupling[None] * (active * k_on[None, :])[:, None, :]
+    for j in range(coupling.shape[0]):
+        inv_pivot = 1.0 / inverse[:, j, j]
+        row = inverse[:, j, :] * inv_pivot[:, None]
+        column = inverse[:, :, j]
+        inverse = inverse - column[:, :, None] * row[:, None, :]
+        inverse = inverse.at[:, j, :].set(row).at[:, :, j].set(-column * inv_pivot[:, None])
+        inverse = inverse.at[:, j, j].set(inv_pivot)
+    return inverse
 
 
 def _apply_inverses(inverses, r):

@@ -1,6 +1,8 @@
 """Monte Carlo of the nonlinear system against the recursion (linear case) and an exact stationary
 density (nonlinear backlash case)."""
 
+import re
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -289,6 +291,56 @@ def test_majority_route_with_open_contacts_and_iterations_agrees_with_the_table(
     np.testing.assert_allclose(d_majority, d_ref, rtol=0, atol=1e-16)
     np.testing.assert_allclose(d_majority, d_table, rtol=0, atol=1e-17)
     np.testing.assert_allclose(np.asarray(d_majority)[rows], alone, rtol=0, atol=1e-17)
+
+
+@pytest.mark.parametrize("symmetric", [True, False])
+def test_pattern_inverses_without_pivoting_match_lapack_inverses(symmetric):
+    """The contact-pattern Jacobian inverses (Gauss-Jordan without pivoting) against NumPy's LU inverses of
+    every pattern of 6 contacts, for a symmetric positive definite coupling and a non-symmetric one with a
+    positive definite symmetric part, from soft to very stiff contacts (S k up to 1e6, cond(J) up to 3e7):
+    relative error per inverse (Frobenius) within 1e-14. A rank-one update per closed contact
+    (Sherman-Morrison), tried first, was off by 1e-10 at S k = 1e6 and fails this. An all-open pattern is
+    exactly the identity."""
+    from pgtjax._newmark import _all_patterns, _pattern_inverses
+
+    rng = np.random.default_rng(3 if symmetric else 4)
+    nc = 6
+    a = rng.normal(size=(nc, nc))
+    coupling = a @ a.T / nc + 0.1 * np.eye(nc)
+    if not symmetric:
+        skew = rng.normal(size=(nc, nc))
+        coupling = coupling + 0.5 * (skew - skew.T)  # the symmetric part stays positive definite
+    patterns, _ = _all_patterns(nc, jnp.float64)
+    for stiffness in (1e-2, 1.0, 1e3, 1e6):
+        k_on = stiffness * rng.uniform(0.5, 1.5, nc)
+        inverses = _pattern_inverses(jnp.asarray(coupling), jnp.asarray(k_on), patterns)
+        assert inverses.dtype == jnp.float64 and inverses.shape == (2**nc, nc, nc)
+        jacobians = np.eye(nc)[None] + coupling[None] * (np.asarray(patterns) * k_on)[:, None, :]
+        reference = np.linalg.inv(jacobians)
+        error = np.linalg.norm(np.asarray(inverses) - reference, axis=(1, 2)) / np.linalg.norm(
+            reference, axis=(1, 2)
+        )
+        assert np.all(error <= 1e-14), (stiffness, error.max())  # cond(J) reaches 3e7: both near-exact
+        np.testing.assert_array_equal(inverses[0], np.eye(nc))
+
+
+def test_contact_solve_of_an_on_off_law_makes_no_lapack_call():
+    """The backlash contact solve (pattern table, majority route and their fallbacks) is elementwise work
+    and products only: a compiled solve holds no LAPACK custom call. jaxlib 0.10.0-0.11.0 can hang when
+    several batched LAPACK calls wait on XLA's thread pool at once (docs/performance.md), so a Monte Carlo
+    step of a backlash system must not make one."""
+    from pgtjax._newmark import solve_contacts_batch
+
+    rng = np.random.default_rng(5)
+    law = pg.Backlash()
+    for nc in (6, 8):  # the table route, and the majority route with its fallbacks
+        a = rng.normal(size=(nc, nc))
+        coupling = jnp.asarray(a @ a.T * 1e-5 + 1e-4 * np.eye(nc))
+        k, b = jnp.asarray(rng.uniform(500.0, 1500.0, nc)), jnp.full(nc, 1e-3)
+        delta_lin = jnp.asarray(rng.normal(size=(64, nc)) * 3e-3)
+        hlo = jax.jit(lambda d, s: solve_contacts_batch(d, s, k, b, law)).lower(delta_lin, coupling).compile()
+        targets = set(re.findall(r'custom_call_target="([^"]*)"', hlo.as_text()))
+        assert not any("lapack" in t for t in targets), (nc, targets)
 
 
 def test_constant_stiffness_mc_equals_time_function_mc():
