@@ -280,26 +280,39 @@ _TABLE_MAX_CONTACTS = 6  # up to here every pattern's inverse is formed once per
 _MAX_ODD_PATTERNS = 16  # other patterns than the majority's inverted per Newton step before the fallback
 
 
+_UNROLLED_ELIMINATION_MAX_CONTACTS = 8  # beyond, a fori_loop: the unrolled loop's compile time grows with nc
+
+
 def _pattern_inverses(coupling, k_on, active):
     """Inverses of the Newton Jacobians ``J = I + S diag(k_on * active)`` (m, nc, nc) of contact patterns
     ``active`` (m, nc), 1.0 where a contact is closed: one formula for every route of
     :func:`solve_contacts_batch`.
 
-    Gauss-Jordan elimination in place, without pivoting, vectorized over the patterns: no pivoting is needed
-    because every leading block ``I + S_11 K_1`` of J is nonsingular when S (= G^T K_eff^-1 G) has a positive
-    definite symmetric part, and its pivots are at least 1 when S is symmetric (docs/performance.md). On a
-    CPU the 64 inverses of 6 contacts take about 16 us where a batched LU with its pivot loop took 44 us, in
-    every Monte Carlo step whatever the batch, and the solve makes no LAPACK call (such calls can hang on
-    several devices on jaxlib 0.10). Inverses agree with LAPACK's to rounding (tests)."""
-    eye = jnp.eye(coupling.shape[0], dtype=coupling.dtype)
-    inverse = eye[None] + coupling[None] * (active * k_on[None, :])[:, None, :]
-    for j in range(coupling.shape[0]):
+    Gauss-Jordan elimination in place, without pivoting, vectorized over the patterns (elementwise work, no
+    LAPACK call: such calls can hang on several devices on jaxlib 0.10.0-0.11.0, and for these small
+    matrices they cost more, docs/performance.md). No pivoting is needed when the symmetric part of S is
+    positive semidefinite, as it is for ``S = G^T K_eff^-1 G`` whenever K_eff's symmetric part is positive
+    definite (sym(A^-1) = A^-T sym(A) A^-1): if ``(I + S_11 K_1) x = 0`` for a leading block, ``y = K_1 x``
+    gives ``x^T K_1 x + y^T S_11 y = 0``, so y = 0 and x = 0, and every leading block is nonsingular. For a
+    symmetric S every pivot is at least 1. An S with an indefinite symmetric part is not supported: a
+    zero pivot gives NaN, and the sample is flagged unconverged."""
+    nc = coupling.shape[0]
+    eye = jnp.eye(nc, dtype=coupling.dtype)
+    jacobians = eye[None] + coupling[None] * (active * k_on[None, :])[:, None, :]
+
+    def eliminate(j, inverse):  # pivot j of the elimination; `inverse` holds J, inverted in place
         inv_pivot = 1.0 / inverse[:, j, j]
         row = inverse[:, j, :] * inv_pivot[:, None]
         column = inverse[:, :, j]
         inverse = inverse - column[:, :, None] * row[:, None, :]
         inverse = inverse.at[:, j, :].set(row).at[:, :, j].set(-column * inv_pivot[:, None])
-        inverse = inverse.at[:, j, j].set(inv_pivot)
+        return inverse.at[:, j, j].set(inv_pivot)
+
+    if nc > _UNROLLED_ELIMINATION_MAX_CONTACTS:
+        return jax.lax.fori_loop(0, nc, eliminate, jacobians)
+    inverse = jacobians
+    for j in range(nc):
+        inverse = eliminate(j, inverse)
     return inverse
 
 

@@ -294,53 +294,64 @@ def test_majority_route_with_open_contacts_and_iterations_agrees_with_the_table(
 
 
 @pytest.mark.parametrize("symmetric", [True, False])
-def test_pattern_inverses_without_pivoting_match_lapack_inverses(symmetric):
-    """The contact-pattern Jacobian inverses (Gauss-Jordan without pivoting) against NumPy's LU inverses of
-    every pattern of 6 contacts, for a symmetric positive definite coupling and a non-symmetric one with a
-    positive definite symmetric part, from soft to very stiff contacts (S k up to 1e6, cond(J) up to 3e7):
-    relative error per inverse (Frobenius) within 1e-14. A rank-one update per closed contact
-    (Sherman-Morrison), tried first, was off by 1e-10 at S k = 1e6 and fails this. An all-open pattern is
+@pytest.mark.parametrize("nc", [1, 6, 12])
+def test_pattern_inverses_without_pivoting_match_lapack_inverses(nc, symmetric):
+    """The contact-pattern Jacobian inverses (Gauss-Jordan without pivoting; unrolled up to 8 contacts, a
+    loop beyond) against NumPy's LU inverses of every pattern (up to 256 drawn ones for 12 contacts), for a
+    symmetric positive definite coupling and a non-symmetric one with a positive definite symmetric part,
+    from soft to very stiff contacts (S k up to 1e6, cond(J) up to 3e7): relative error per inverse
+    (Frobenius) within 1e-14 here, where both are near-exact. A rank-one update per closed contact
+    (Sherman-Morrison), tried first, was off by 1e-10 at S k = 1e6 and fails this. An all-open pattern gives
     exactly the identity."""
     from pgtjax._newmark import _all_patterns, _pattern_inverses
 
-    rng = np.random.default_rng(3 if symmetric else 4)
-    nc = 6
+    rng = np.random.default_rng(nc + (0 if symmetric else 100))
     a = rng.normal(size=(nc, nc))
     coupling = a @ a.T / nc + 0.1 * np.eye(nc)
     if not symmetric:
         skew = rng.normal(size=(nc, nc))
         coupling = coupling + 0.5 * (skew - skew.T)  # the symmetric part stays positive definite
-    patterns, _ = _all_patterns(nc, jnp.float64)
+    patterns = np.asarray(_all_patterns(nc, jnp.float64)[0])
+    if len(patterns) > 256:
+        patterns = np.r_[patterns[:1], rng.permutation(patterns[1:])[:255]]
     for stiffness in (1e-2, 1.0, 1e3, 1e6):
         k_on = stiffness * rng.uniform(0.5, 1.5, nc)
-        inverses = _pattern_inverses(jnp.asarray(coupling), jnp.asarray(k_on), patterns)
-        assert inverses.dtype == jnp.float64 and inverses.shape == (2**nc, nc, nc)
-        jacobians = np.eye(nc)[None] + coupling[None] * (np.asarray(patterns) * k_on)[:, None, :]
+        inverses = _pattern_inverses(jnp.asarray(coupling), jnp.asarray(k_on), jnp.asarray(patterns))
+        assert inverses.dtype == jnp.float64 and inverses.shape == (len(patterns), nc, nc)
+        jacobians = np.eye(nc)[None] + coupling[None] * (patterns * k_on)[:, None, :]
         reference = np.linalg.inv(jacobians)
-        error = np.linalg.norm(np.asarray(inverses) - reference, axis=(1, 2)) / np.linalg.norm(
-            reference, axis=(1, 2)
-        )
-        assert np.all(error <= 1e-14), (stiffness, error.max())  # cond(J) reaches 3e7: both near-exact
+        difference = np.linalg.norm(np.asarray(inverses) - reference, axis=(1, 2))
+        error = difference / np.linalg.norm(reference, axis=(1, 2))
+        assert np.all(error <= 1e-14), (stiffness, error.max(), np.linalg.cond(jacobians).max())
         np.testing.assert_array_equal(inverses[0], np.eye(nc))
 
 
+@pytest.mark.skipif(jax.default_backend() != "cpu", reason="looks for LAPACK custom calls of the CPU backend")
 def test_contact_solve_of_an_on_off_law_makes_no_lapack_call():
-    """The backlash contact solve (pattern table, majority route and their fallbacks) is elementwise work
-    and products only: a compiled solve holds no LAPACK custom call. jaxlib 0.10.0-0.11.0 can hang when
-    several batched LAPACK calls wait on XLA's thread pool at once (docs/performance.md), so a Monte Carlo
-    step of a backlash system must not make one."""
+    """The backlash contact solve is elementwise work and products only: a compiled solve holds no LAPACK
+    custom call, on the pattern table (6 contacts), the majority route with its fallback to all 2^nc
+    patterns (7 contacts, 128 samples) and to one inverse per sample (8 contacts, 64 samples), and the
+    looped elimination (10 contacts). jaxlib 0.10.0-0.11.0 can hang when several batched LAPACK calls wait
+    on XLA's thread pool at once (docs/performance.md), so a Monte Carlo step of a backlash system must not
+    make one. The same search finds the LAPACK calls of ``jnp.linalg.inv`` (the control)."""
     from pgtjax._newmark import solve_contacts_batch
 
+    def lapack_calls(compiled):
+        targets = set(re.findall(r'custom_call_target="([^"]*)"', compiled.as_text()))
+        return {t for t in targets if "lapack" in t}
+
+    assert lapack_calls(jax.jit(jnp.linalg.inv).lower(jnp.eye(6)[None]).compile())  # the control
     rng = np.random.default_rng(5)
     law = pg.Backlash()
-    for nc in (6, 8):  # the table route, and the majority route with its fallbacks
+    for nc, batch in ((6, 64), (7, 128), (8, 64), (10, 64)):
         a = rng.normal(size=(nc, nc))
         coupling = jnp.asarray(a @ a.T * 1e-5 + 1e-4 * np.eye(nc))
         k, b = jnp.asarray(rng.uniform(500.0, 1500.0, nc)), jnp.full(nc, 1e-3)
-        delta_lin = jnp.asarray(rng.normal(size=(64, nc)) * 3e-3)
-        hlo = jax.jit(lambda d, s: solve_contacts_batch(d, s, k, b, law)).lower(delta_lin, coupling).compile()
-        targets = set(re.findall(r'custom_call_target="([^"]*)"', hlo.as_text()))
-        assert not any("lapack" in t for t in targets), (nc, targets)
+        delta_lin = jnp.asarray(rng.normal(size=(batch, nc)) * 3e-3)
+        compiled = (
+            jax.jit(lambda d, s: solve_contacts_batch(d, s, k, b, law)).lower(delta_lin, coupling).compile()
+        )
+        assert not lapack_calls(compiled), nc
 
 
 def test_constant_stiffness_mc_equals_time_function_mc():
