@@ -278,8 +278,6 @@ def solve_contacts(delta_lin, coupling, k, b, law, *, tol=1e-12, max_iter=50):
 
 _TABLE_MAX_CONTACTS = 6  # up to here every pattern's inverse is formed once per solve (2^6 = 64)
 _MAX_ODD_PATTERNS = 16  # other patterns than the majority's inverted per Newton step before the fallback
-
-
 _UNROLLED_ELIMINATION_MAX_CONTACTS = 8  # beyond, a fori_loop: the unrolled loop's compile time grows with nc
 
 
