@@ -155,22 +155,25 @@ class EigenSampleState(NamedTuple):
     A^-1 G(t)``. Carrying ``y`` folds the end-of-step force of one step and the start-of-step force of the
     next (the same forces along the same directions) into one product per step.
 
-    ``y`` is kept as its complex pairs' columns and its real eigenvalues' columns: the real part's update
-    reads each column only, so XLA updates it in place; the pairs' 2x2 blocks read each other's columns, and
-    in one array they made XLA write the whole state to a new buffer and copy it back every step."""
+    ``y`` is kept as three arrays: the Re and the Im parts of its complex pairs, and its real eigenvalues'
+    columns. The real part's update reads each column only, so XLA updates it in place; in one array with
+    it, the pairs' 2x2 blocks (which read each other's columns) made XLA write the whole state to a new
+    buffer and copy it back every step. Re and Im apart, a block's update is two elementwise expressions
+    without the concatenation a single pairs array needed (docs/performance.md)."""
 
-    pairs: jax.Array  # y's first 2 n_pairs columns (Re parts, then Im parts), (batch, 2 n_pairs)
+    re: jax.Array  # y's Re parts of the complex pairs, (batch, n_pairs)
+    im: jax.Array  # y's Im parts of the complex pairs, (batch, n_pairs)
     real: jax.Array  # y's other columns, (batch, 2n - 2 n_pairs)
     force: jax.Array
 
     @property
     def y(self):
-        return jnp.concatenate([self.pairs, self.real], axis=1)
+        return jnp.concatenate([self.re, self.im, self.real], axis=1)
 
 
 def _split_state(prop: EigenPropagator, y, force) -> EigenSampleState:
-    cut = 2 * prop.n_pairs
-    return EigenSampleState(y[:, :cut], y[:, cut:], force)
+    m = prop.n_pairs
+    return EigenSampleState(y[:, :m], y[:, m : 2 * m], y[:, 2 * m :], force)
 
 
 def _contact_input(prop: EigenPropagator, snap: Snapshot):
@@ -240,13 +243,20 @@ def eigen_sample_step(
         q0 = _contact_input(prop, s0)
         columns.append(state.force)
         rows.append(-(prop.advance(q0) + q0))
-    cut = 2 * prop.n_pairs
-    pairs = prop.advance_pairs(state.pairs) + _outer_products(columns, [r[:, :cut] for r in rows])
-    real = state.real * prop.scale[None, cut:] + _outer_products(columns, [r[:, cut:] for r in rows])
+    m = prop.n_pairs
+    a, b = prop.scale[None, :m], prop.cross[None, :]
+    re = a * state.re + b * state.im + _outer_products(columns, [r[:, :m] for r in rows])
+    im = a * state.im - b * state.re + _outer_products(columns, [r[:, m : 2 * m] for r in rows])
+    real = state.real * prop.scale[None, 2 * m :] + _outer_products(columns, [r[:, 2 * m :] for r in rows])
     if not system.n_contacts:
-        return EigenSampleState(pairs, real, state.force), ok
+        return EigenSampleState(re, im, real, state.force), ok
     g1 = s1.direction
     to_contacts = prop.basis[: system.n_dof].T @ g1  # (2n, nc): contact deflections per eigen-coordinate
-    delta_lin = pairs @ to_contacts[:cut] + real @ to_contacts[cut:]
+    delta_lin = real @ to_contacts[2 * m :]
+    # a few pairs: outer products, fused with the sum (two small products and an add cost more)
+    if 0 < 2 * m <= _FUSED_PRODUCT_MAX_TERMS:
+        delta_lin = delta_lin + _outer_products([re, im], [to_contacts[:m], to_contacts[m : 2 * m]])
+    elif m:
+        delta_lin = delta_lin + re @ to_contacts[:m] + im @ to_contacts[m : 2 * m]
     force, ok = solve_contact_forces(system, delta_lin, g1.T @ prop.a_inv @ g1, s1.contact_inputs)
-    return EigenSampleState(pairs, real, force), ok
+    return EigenSampleState(re, im, real, force), ok

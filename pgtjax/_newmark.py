@@ -31,6 +31,7 @@ second-order accurate and unconditionally stable.
 from __future__ import annotations
 
 import abc
+import functools
 from typing import ClassVar, NamedTuple
 
 import equinox as eqx
@@ -244,7 +245,14 @@ def _residual_scale(delta_lin, b):
     say) can never reach a relative residual of 1e-12, so the solve ran to ``max_iter`` and was flagged
     unconverged; contacts above the floor keep their own relative criterion."""
     own = jnp.abs(delta_lin) + b
-    return jnp.maximum(own, 1e-4 * jnp.max(own, axis=-1, keepdims=True)) + 1e-300
+    # the largest as a chain of elementwise maxima: XLA fuses it with its neighbours, where a reduction over
+    # a few contacts became a separate XNNPACK kernel
+    nc = own.shape[-1]
+    if 0 < nc <= _ELEMENTWISE_MAX_CONTACTS:
+        largest = functools.reduce(jnp.maximum, [own[..., j : j + 1] for j in range(nc)])
+    else:
+        largest = jnp.max(own, axis=-1, keepdims=True, initial=0.0)
+    return jnp.maximum(own, 1e-4 * largest) + 1e-300
 
 
 def solve_contacts(delta_lin, coupling, k, b, law, *, tol=1e-12, max_iter=50):
@@ -279,6 +287,7 @@ def solve_contacts(delta_lin, coupling, k, b, law, *, tol=1e-12, max_iter=50):
 _TABLE_MAX_CONTACTS = 6  # up to here every pattern's inverse is formed once per solve (2^6 = 64)
 _MAX_ODD_PATTERNS = 16  # other patterns than the majority's inverted per Newton step before the fallback
 _UNROLLED_ELIMINATION_MAX_CONTACTS = 8  # beyond, a fori_loop: the unrolled loop's compile time grows with nc
+_ELEMENTWISE_MAX_CONTACTS = 16  # up to here a sample's largest residual scale is a chain of maxima
 
 
 def _pattern_inverses(coupling, k_on, active):

@@ -380,12 +380,14 @@ def test_constant_stiffness_mc_equals_time_function_mc():
         np.testing.assert_allclose(x, y, rtol=0, atol=1e-9 * float(jnp.max(jnp.abs(y))))
 
 
-def _chain_with_contacts(n=14, seed=5):
+def _chain_with_contacts(n=14, seed=5, damping_scale=1.0):
     """Lightly damped grounded chain with one heavy dashpot (complex eigenvalue pairs and real eigenvalues);
     two backlash contacts that open and close, one of them moving (its direction turns with time, as the
-    planetary ring-planet meshes do); a time-varying load and noise input; a time-dependent observable."""
+    planetary ring-planet meshes do); a time-varying load and noise input; a time-dependent observable.
+    ``damping_scale`` multiplies the proportional damping (60 leaves 3 complex pairs, 1 leaves 13) and, by
+    half of it, the noise's spectral density, so that the contacts still open and close."""
     m, k = grounded_spring_chain(n, 400.0, seed)
-    c = 0.002 * k + 0.05 * m
+    c = damping_scale * (0.002 * k + 0.05 * m)
     c[5, 5] += 80.0  # overdamps a few modes: real eigenvalues
     g = np.zeros((n, 2))
     g[[3, 9], [0, 1]], g[[4, 10], [0, 1]] = 1.0, -1.0
@@ -406,24 +408,29 @@ def _chain_with_contacts(n=14, seed=5):
         damping=c,
         load=lambda t: jnp.eye(n)[1] * (1.5 + jnp.cos(5.0 * t)),
         noise_input=lambda t: jnp.asarray(noise) * (1.0 + 0.4 * jnp.sin(3.0 * t)),
-        spectral_density=[0.04, 0.02],
+        spectral_density=[0.04 * max(1.0, damping_scale / 2), 0.02 * max(1.0, damping_scale / 2)],
         contacts=contacts,
     )
     obs = pg.Observables(lambda t: jnp.stack([jnp.eye(n)[2] * jnp.cos(t), jnp.eye(n)[7]]), names=["c", "d"])
     return system, obs
 
 
-@pytest.mark.parametrize("scheme", ["trapezoidal", "newmark"])
-def test_eigen_coordinates_reproduce_the_physical_coordinate_scheme(scheme):
+@pytest.mark.parametrize(
+    "scheme, damping_scale", [("trapezoidal", 1.0), ("newmark", 1.0), ("trapezoidal", 60.0)]
+)
+def test_eigen_coordinates_reproduce_the_physical_coordinate_scheme(scheme, damping_scale):
     """Stepping the samples in the eigenbasis of the contact-free map is the same discretization: on the same
-    draws every statistic agrees with the physical-coordinate step to rounding."""
-    from pgtjax._eigenbasis import eigen_propagator
+    draws every statistic agrees with the physical-coordinate step to rounding. With many complex pairs
+    their contact deflections are two matrix products, with a few a sum of outer products."""
+    from pgtjax._eigenbasis import _FUSED_PRODUCT_MAX_TERMS, eigen_propagator
 
-    system, obs = _chain_with_contacts()
+    system, obs = _chain_with_contacts(damping_scale=damping_scale)
     n = system.n_dof
     prop, reason = eigen_propagator(system, 0.01)
     assert reason == "" and prop.condition < 1e4
     assert 0 < 2 * prop.n_pairs < 2 * n  # complex pairs and real eigenvalues
+    few_pairs = 2 * prop.n_pairs <= _FUSED_PRODUCT_MAX_TERMS
+    assert few_pairs == (damping_scale > 1.0)  # each branch of the contact deflections is covered
     p0 = np.diag(np.r_[np.full(n, 1e-3), np.full(n, 1e-2)]) ** 2
     kw = dict(
         n_samples=300,
