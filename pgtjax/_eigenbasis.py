@@ -252,11 +252,12 @@ def eigen_sample_step(
         return EigenSampleState(re, im, real, state.force), ok
     g1 = s1.direction
     to_contacts = prop.basis[: system.n_dof].T @ g1  # (2n, nc): contact deflections per eigen-coordinate
-    delta_lin = real @ to_contacts[2 * m :]
-    # a few pairs: outer products, fused with the sum (two small products and an add cost more)
-    if 0 < 2 * m <= _FUSED_PRODUCT_MAX_TERMS:
-        delta_lin = delta_lin + _outer_products([re, im], [to_contacts[:m], to_contacts[m : 2 * m]])
-    elif m:
-        delta_lin = delta_lin + re @ to_contacts[:m] + im @ to_contacts[m : 2 * m]
+    # few columns: outer products, fused with the sum (small matrix products and their adds cost more)
+    parts = [(re, to_contacts[:m]), (im, to_contacts[m : 2 * m]), (real, to_contacts[2 * m :])]
+    few = [p for p in parts if 0 < p[0].shape[1] <= _FUSED_PRODUCT_MAX_TERMS // 2]
+    many = [p for p in parts if p[0].shape[1] > _FUSED_PRODUCT_MAX_TERMS // 2]
+    delta_lin = _outer_products(*zip(*few)) if few else None
+    for columns, rows in many:
+        delta_lin = columns @ rows if delta_lin is None else delta_lin + columns @ rows
     force, ok = solve_contact_forces(system, delta_lin, g1.T @ prop.a_inv @ g1, s1.contact_inputs)
     return EigenSampleState(re, im, real, force), ok

@@ -420,8 +420,9 @@ def _chain_with_contacts(n=14, seed=5, damping_scale=1.0):
 )
 def test_eigen_coordinates_reproduce_the_physical_coordinate_scheme(scheme, damping_scale):
     """Stepping the samples in the eigenbasis of the contact-free map is the same discretization: on the same
-    draws every statistic agrees with the physical-coordinate step to rounding. With many complex pairs
-    their contact deflections are two matrix products, with a few a sum of outer products."""
+    draws every statistic agrees with the physical-coordinate step to rounding. A part of the state (Re and Im
+    parts of the complex pairs, real eigenvalues' columns) with many columns enters the contact deflections as
+    a matrix product, one with a few as a sum of outer products: both cases are covered for both parts."""
     from pgtjax._eigenbasis import _FUSED_PRODUCT_MAX_TERMS, eigen_propagator
 
     system, obs = _chain_with_contacts(damping_scale=damping_scale)
@@ -429,8 +430,9 @@ def test_eigen_coordinates_reproduce_the_physical_coordinate_scheme(scheme, damp
     prop, reason = eigen_propagator(system, 0.01)
     assert reason == "" and prop.condition < 1e4
     assert 0 < 2 * prop.n_pairs < 2 * n  # complex pairs and real eigenvalues
-    few_pairs = 2 * prop.n_pairs <= _FUSED_PRODUCT_MAX_TERMS
-    assert few_pairs == (damping_scale > 1.0)  # each branch of the contact deflections is covered
+    few_pairs = prop.n_pairs <= _FUSED_PRODUCT_MAX_TERMS // 2
+    few_real = 0 < 2 * (n - prop.n_pairs) <= _FUSED_PRODUCT_MAX_TERMS // 2
+    assert few_pairs == (damping_scale > 1.0) and few_real == (damping_scale == 1.0)
     p0 = np.diag(np.r_[np.full(n, 1e-3), np.full(n, 1e-2)]) ** 2
     kw = dict(
         n_samples=300,
