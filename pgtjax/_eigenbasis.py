@@ -73,8 +73,8 @@ class EigenPropagator(eqx.Module):
         return self.cross.shape[0]
 
     def advance(self, z):
-        """``z -> Lambda z`` for rows ``z`` (k, 2n), e.g. the contact directions' images (a batch of samples
-        is advanced in two parts, :class:`EigenSampleState`): elementwise, the 2x2 blocks pairing Re and Im."""
+        """``z -> Lambda z`` for rows ``z`` (k, 2n), e.g. the contact directions' images: elementwise, the 2x2
+        blocks pairing Re and Im. (A batch's state is advanced part by part, :func:`eigen_sample_step`.)"""
         cut = 2 * self.n_pairs
         return jnp.concatenate([self.advance_pairs(z[:, :cut]), z[:, cut:] * self.scale[None, cut:]], axis=1)
 
@@ -192,14 +192,16 @@ def eigen_physical(prop: EigenPropagator, state: EigenSampleState, snap: Snapsho
 
 
 _FUSED_PRODUCT_MAX_TERMS = 16
+_FUSED_DEFLECTION_MAX_COLUMNS = 8  # a part of the state this narrow enters the contact deflections fused
 
 
 def _outer_products(columns, rows):
-    """``concatenate(columns, 1) @ concatenate(rows, 0)``: (batch, k) times (k, 2n). For the few terms of a
-    step (1 + n_draws + nc) it is written as a sum of outer products, which XLA fuses with
-    :meth:`EigenPropagator.advance` into one pass over the batch's state (as a matrix product the state was
-    read and written twice more per step: planetary 267 against 229 ns per sample-step, gear pair 18.5
-    against 15.9, two CPU devices; docs/performance.md). Results agree with the product's to rounding."""
+    """``concatenate(columns, 1) @ concatenate(rows, 0)``: (batch, k) times (k, w). For few terms (the
+    1 + n_draws + nc inputs of a step, or a narrow part of the state in the contact deflections) it is
+    written as a sum of outer products, which XLA fuses with the elementwise work around it into one pass
+    over the batch (as a matrix product the state was read and written twice more per step: planetary 267
+    against 229 ns per sample-step, gear pair 18.5 against 15.9, two CPU devices; docs/performance.md).
+    Results agree with the product's to rounding."""
     k = sum(c.shape[1] for c in columns)
     if k > _FUSED_PRODUCT_MAX_TERMS:
         return jnp.concatenate(columns, axis=1) @ jnp.concatenate(rows, axis=0)
@@ -252,12 +254,20 @@ def eigen_sample_step(
         return EigenSampleState(re, im, real, state.force), ok
     g1 = s1.direction
     to_contacts = prop.basis[: system.n_dof].T @ g1  # (2n, nc): contact deflections per eigen-coordinate
-    # few columns: outer products, fused with the sum (small matrix products and their adds cost more)
-    parts = [(re, to_contacts[:m]), (im, to_contacts[m : 2 * m]), (real, to_contacts[2 * m :])]
-    few = [p for p in parts if 0 < p[0].shape[1] <= _FUSED_PRODUCT_MAX_TERMS // 2]
-    many = [p for p in parts if p[0].shape[1] > _FUSED_PRODUCT_MAX_TERMS // 2]
-    delta_lin = _outer_products(*zip(*few)) if few else None
-    for columns, rows in many:
-        delta_lin = columns @ rows if delta_lin is None else delta_lin + columns @ rows
+    # a narrow part enters as outer products, which fuse with the sum (as a small matrix product and an add,
+    # each was a kernel of its own); a wide part as a matrix product
+    delta_lin = None
+    for part, part_to_contacts in (
+        (re, to_contacts[:m]),
+        (im, to_contacts[m : 2 * m]),
+        (real, to_contacts[2 * m :]),
+    ):
+        if not part.shape[1]:
+            continue
+        if part.shape[1] <= _FUSED_DEFLECTION_MAX_COLUMNS:
+            term = _outer_products([part], [part_to_contacts])
+        else:
+            term = part @ part_to_contacts
+        delta_lin = term if delta_lin is None else delta_lin + term
     force, ok = solve_contact_forces(system, delta_lin, g1.T @ prop.a_inv @ g1, s1.contact_inputs)
     return EigenSampleState(re, im, real, force), ok

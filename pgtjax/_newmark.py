@@ -250,7 +250,7 @@ def _residual_scale(delta_lin, b):
     nc = own.shape[-1]
     if 0 < nc <= _ELEMENTWISE_MAX_CONTACTS:
         largest = functools.reduce(jnp.maximum, [own[..., j : j + 1] for j in range(nc)])
-    else:
+    else:  # initial: a maximum over no contacts is 0, not an error (own >= 0 since clearances are >= 0)
         largest = jnp.max(own, axis=-1, keepdims=True, initial=0.0)
     return jnp.maximum(own, 1e-4 * largest) + 1e-300
 

@@ -384,8 +384,8 @@ def _chain_with_contacts(n=14, seed=5, damping_scale=1.0):
     """Lightly damped grounded chain with one heavy dashpot (complex eigenvalue pairs and real eigenvalues);
     two backlash contacts that open and close, one of them moving (its direction turns with time, as the
     planetary ring-planet meshes do); a time-varying load and noise input; a time-dependent observable.
-    ``damping_scale`` multiplies the proportional damping (60 leaves 3 complex pairs, 1 leaves 13) and, by
-    half of it, the noise's spectral density, so that the contacts still open and close."""
+    ``damping_scale`` multiplies the proportional damping (60 leaves 3 complex pairs, 1 leaves 13) and the
+    noise's spectral density by ``max(1, damping_scale / 2)``, so that the contacts still open and close."""
     m, k = grounded_spring_chain(n, 400.0, seed)
     c = damping_scale * (0.002 * k + 0.05 * m)
     c[5, 5] += 80.0  # overdamps a few modes: real eigenvalues
@@ -422,16 +422,17 @@ def test_eigen_coordinates_reproduce_the_physical_coordinate_scheme(scheme, damp
     """Stepping the samples in the eigenbasis of the contact-free map is the same discretization: on the same
     draws every statistic agrees with the physical-coordinate step to rounding. A part of the state (Re and Im
     parts of the complex pairs, real eigenvalues' columns) with many columns enters the contact deflections as
-    a matrix product, one with a few as a sum of outer products: both cases are covered for both parts."""
-    from pgtjax._eigenbasis import _FUSED_PRODUCT_MAX_TERMS, eigen_propagator
+    a matrix product, one with a few as a sum of outer products: both cases are covered for the pairs'
+    parts and for the real part."""
+    from pgtjax._eigenbasis import _FUSED_DEFLECTION_MAX_COLUMNS, eigen_propagator
 
     system, obs = _chain_with_contacts(damping_scale=damping_scale)
     n = system.n_dof
     prop, reason = eigen_propagator(system, 0.01)
     assert reason == "" and prop.condition < 1e4
     assert 0 < 2 * prop.n_pairs < 2 * n  # complex pairs and real eigenvalues
-    few_pairs = prop.n_pairs <= _FUSED_PRODUCT_MAX_TERMS // 2
-    few_real = 0 < 2 * (n - prop.n_pairs) <= _FUSED_PRODUCT_MAX_TERMS // 2
+    few_pairs = prop.n_pairs <= _FUSED_DEFLECTION_MAX_COLUMNS
+    few_real = 0 < 2 * (n - prop.n_pairs) <= _FUSED_DEFLECTION_MAX_COLUMNS
     assert few_pairs == (damping_scale > 1.0) and few_real == (damping_scale == 1.0)
     p0 = np.diag(np.r_[np.full(n, 1e-3), np.full(n, 1e-2)]) ** 2
     kw = dict(
@@ -471,6 +472,29 @@ def test_eigen_coordinates_reproduce_the_physical_coordinate_scheme(scheme, damp
     # a sample may cross a bin edge by rounding: at most one count per bin
     assert np.max(np.abs(np.asarray(eig.histograms["force:a"] - phys.histograms["force:a"]))) <= 1.0
     assert float(eig.unconverged) == float(phys.unconverged) == 0.0
+
+
+def test_gear_pair_eigen_step_with_every_part_fused_reproduces_the_physical_step():
+    """The gear pair's map has 2 complex pairs and 2 real eigenvalues at dt = 10 us: every part of the state
+    enters the contact deflections as outer products. On the same draws the statistics agree with the
+    physical-coordinate step to rounding (cond(W) is about 140), with the mesh opening in some samples."""
+    from pgtjax._eigenbasis import _FUSED_DEFLECTION_MAX_COLUMNS, eigen_propagator
+    from pgtjax.models import gear_pair as gp
+
+    system = gp.build(gp.default_params())
+    prop, reason = eigen_propagator(system, 1e-5)
+    assert reason == ""
+    assert 0 < prop.n_pairs <= _FUSED_DEFLECTION_MAX_COLUMNS
+    assert 0 < 2 * (system.n_dof - prop.n_pairs) <= _FUSED_DEFLECTION_MAX_COLUMNS
+    kw = dict(n_samples=200, key=jax.random.key(3), dt=1e-5, n_steps=300, save_every=30, progress=False)
+    eig = pg.monte_carlo(system, propagation="eigen", **kw)
+    phys = pg.monte_carlo(system, propagation="physical", **kw)
+    assert (eig.propagation, phys.propagation) == ("eigen", "physical")
+    assert 0.02 < float(jnp.mean(phys.contact_loss_probability[1:])) < 0.98
+    for name in ("mean_u", "std_u", "mean_v", "std_v", "mean_delta", "std_delta", "force_mean", "force_std"):
+        a, b = np.asarray(getattr(eig, name)), np.asarray(getattr(phys, name))
+        assert a.dtype == np.float64
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-10 * np.max(np.abs(b)), err_msg=name)
 
 
 @pytest.mark.parametrize("widths", [(1, 1, 6), (1, 2, 20)])  # fused sum of outer products; matrix product
