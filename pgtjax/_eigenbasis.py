@@ -13,7 +13,8 @@ shares its eigenvectors. In the real eigenbasis ``x~ = W z`` the map T is block 
 real eigenvalue and a 2x2 block ``[[a, b], [-b, a]]`` per complex pair ``a +- ib`` (columns Re w, Im w of
 the eigenvector w). A sample's step then costs O(n (nc + n_draws)) instead of the dense O(n^2) product: an
 elementwise update plus products with the (2n, nc) images of the contact directions and the noise input.
-Physical coordinates are formed (one (2n, 2n) product per sample) only at the saved times.
+The recorded quantities (u, v, contact deflections, observables) are formed from the eigen-coordinates,
+with one product per sample, only at the saved times.
 
 It is the same discretization, not an approximation: the results agree with the physical-coordinate step to
 rounding amplified by at most cond(W). cond(W) grows as the step shrinks (about 2 / (omega h) for a lightly
@@ -186,9 +187,37 @@ def eigen_initial_state(prop: EigenPropagator, u, v, force, snap: Snapshot) -> E
     return _split_state(prop, prop.from_physical(u, v) + force @ _contact_input(prop, snap), force)
 
 
-def eigen_physical(prop: EigenPropagator, state: EigenSampleState, snap: Snapshot):
-    """``(u, v)`` (batch, n) each of a state at the time of ``snap``."""
-    return prop.to_physical(state.y - state.force @ _contact_input(prop, snap))
+def eigen_recorded(prop: EigenPropagator, state: EigenSampleState, snap: Snapshot, observation):
+    """``[u, v, u G(t), force, u C]`` (batch, 2n + 2 nc + k) of a state at the time of ``snap``: Monte Carlo's
+    recorded quantities (displacements, velocities, contact deflections, contact forces and observables
+    ``u C``, ``observation`` C (n, k)), in the order of ``pgtjax._montecarlo.quantity_names``.
+
+    They are linear in the state, so they are formed straight from the eigen-coordinates with rows
+    ``W_u^T [I, 0, G, 0, C]`` and ``(2/h) W_v^T [0, I, 0, 0, 0]``: one matrix product with the real
+    eigenvalues' columns and the narrow parts (pairs, forces) as fused outer products. Forming ``(u, v)``
+    first took four more passes over the batch (the state's concatenation, the force correction, the
+    velocity scaling and the quantities' concatenation; docs/performance.md). Results agree with that route
+    to rounding."""
+    n = prop.basis.shape[0] // 2
+    nc = state.force.shape[1]
+    to_u = prop.basis[:n].T  # (2n, n): u per eigen-coordinate
+    to_v = (2.0 / prop.h) * prop.basis[n:].T
+    rows = jnp.concatenate(
+        [to_u, to_v, to_u @ snap.direction, jnp.zeros((2 * n, nc), to_u.dtype), to_u @ observation], axis=1
+    )
+    # z = y - force Q(t)^T, and the force columns are the forces themselves
+    force_rows = (-_contact_input(prop, snap) @ rows).at[:, 2 * n + nc : 2 * n + 2 * nc].add(jnp.eye(nc))
+    m = prop.n_pairs
+    parts = (state.re, state.im, state.real, state.force)
+    part_rows = (rows[:m], rows[m : 2 * m], rows[2 * m :], force_rows)
+    wide = [p @ r for p, r in zip(parts, part_rows) if p.shape[1] > _FUSED_DEFLECTION_MAX_COLUMNS]
+    narrow = [(p, r) for p, r in zip(parts, part_rows) if 0 < p.shape[1] <= _FUSED_DEFLECTION_MAX_COLUMNS]
+    if narrow:
+        wide.append(_outer_products([p for p, _ in narrow], [r for _, r in narrow]))
+    total = wide[0]
+    for term in wide[1:]:
+        total = total + term
+    return total
 
 
 _FUSED_PRODUCT_MAX_TERMS = 16

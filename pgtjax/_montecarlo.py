@@ -26,7 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._checkpoint import checkpoint_file, load_checkpoint, save_checkpoint, tree_digest
-from ._eigenbasis import eigen_initial_state, eigen_physical, eigen_propagator, eigen_sample_step
+from ._eigenbasis import eigen_initial_state, eigen_propagator, eigen_recorded, eigen_sample_step
 from ._failure import SolverError, raise_if_nonfinite
 from ._loop import saved_scan
 from ._newmark import (
@@ -169,25 +169,32 @@ def _sample_statistics(
         def step(state, snap0, snap1, draws):
             return sample_step(system, state, snap0, snap1, dt, draws, integrator, prop)
 
-        def physical(state, snap):
-            return state.u, state.v
-    else:  # eigen-coordinates of the contact-free map (pgtjax._eigenbasis), physical only at saved times
+        def recorded(state, snap, t):  # the quantities of quantity_names, (batch, n_quantities)
+            u = state.u
+            parts = [u, state.v, u @ snap.direction, state.force]
+            if observables is not None:
+                y = u @ observables(t).T
+                parts.append(y if observables.offset is None else y + observables.shift(t)[None, :])
+            return jnp.concatenate(parts, axis=1)
+    else:  # eigen-coordinates of the contact-free map (pgtjax._eigenbasis)
         state = eigen_initial_state(eigen, state.u, state.v, state.force, s0)
 
         def step(state, snap0, snap1, draws):
             return eigen_sample_step(system, eigen, state, snap0, snap1, draws, integrator)
 
-        def physical(state, snap):
-            return eigen_physical(eigen, state, snap)
+        def recorded(state, snap, t):  # straight from the eigen-coordinates: (u, v) are never formed
+            c = jnp.zeros((n, 0), state.real.dtype) if observables is None else observables(t).T
+            q = eigen_recorded(eigen, state, snap, c)
+            if observables is not None and observables.offset is not None:
+                shift = observables.shift(t)
+                q = q + jnp.concatenate([jnp.zeros(q.shape[1] - shift.shape[0], q.dtype), shift])[None, :]
+            return q
+
+    nc = clearance.shape[0]
 
     def statistics(state, snap, t):
-        u, v = physical(state, snap)
-        delta = u @ snap.direction
-        parts = [u, v, delta, state.force]
-        if observables is not None:
-            y = u @ observables(t).T
-            parts.append(y if observables.offset is None else y + observables.shift(t)[None, :])
-        q = jnp.concatenate(parts, axis=1)
+        q = recorded(state, snap, t)
+        delta = q[:, 2 * n : 2 * n + nc]
         mean = weights @ q / total
         m2 = weights @ (q - mean[None, :]) ** 2
         loss = weights @ (jnp.abs(delta) < clearance[None, :]).astype(q.dtype)

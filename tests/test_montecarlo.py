@@ -411,7 +411,11 @@ def _chain_with_contacts(n=14, seed=5, damping_scale=1.0):
         spectral_density=[0.04 * max(1.0, damping_scale / 2), 0.02 * max(1.0, damping_scale / 2)],
         contacts=contacts,
     )
-    obs = pg.Observables(lambda t: jnp.stack([jnp.eye(n)[2] * jnp.cos(t), jnp.eye(n)[7]]), names=["c", "d"])
+    obs = pg.Observables(
+        lambda t: jnp.stack([jnp.eye(n)[2] * jnp.cos(t), jnp.eye(n)[7]]),
+        names=["c", "d"],
+        offset=lambda t: jnp.array([1e-3 * jnp.sin(2.0 * t), -5e-4]),
+    )
     return system, obs
 
 
@@ -423,7 +427,8 @@ def test_eigen_coordinates_reproduce_the_physical_coordinate_scheme(scheme, damp
     draws every statistic agrees with the physical-coordinate step to rounding. A part of the state (Re and Im
     parts of the complex pairs, real eigenvalues' columns) with many columns enters the contact deflections as
     a matrix product, one with a few as a sum of outer products: both cases are covered for the pairs'
-    parts and for the real part."""
+    parts and for the real part. The recorded quantities (u, v, deflections, forces, observables with their
+    offset) are formed straight from the eigen-coordinates, with the same two routes."""
     from pgtjax._eigenbasis import _FUSED_DEFLECTION_MAX_COLUMNS, eigen_propagator
 
     system, obs = _chain_with_contacts(damping_scale=damping_scale)
