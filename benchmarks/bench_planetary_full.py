@@ -1,6 +1,6 @@
 """End-to-end benchmark of the issue's Monte Carlo target: the ch. 3 planetary study at the thesis's size
-(SL + recursion and 100,000 Monte Carlo samples over one carrier period at dt = 2.7 ms, MC saved 200 times
-and SL 2,000 times, the contact-point observables), i.e. the SL and MC part of ``pgtjax run --full``, timed once from a cold
+(SL + recursion and 100,000 Monte Carlo samples over one carrier period at dt = 2.7 ms, both saved about
+2,000 times as the study does, the contact-point observables), i.e. the SL and MC part of ``pgtjax run --full``, timed once from a cold
 start (compilation included) with the process's peak resident memory. The SL-vs-MC agreement of the run is
 recorded with it.
 

@@ -86,12 +86,6 @@ class EigenPropagator(eqx.Module):
         b = self.cross[None, :]
         return pairs * self.scale[None, : 2 * m] + jnp.concatenate([b * im, -b * re], axis=1)
 
-    def to_physical(self, z):
-        """``(u, v)`` of a batch of eigen-coordinates (batch, 2n), each (batch, n)."""
-        n = z.shape[1] // 2
-        x = z @ self.basis.T
-        return x[:, :n], (2.0 / self.h) * x[:, n:]
-
     def from_physical(self, u, v):
         """Eigen-coordinates (batch, 2n) of displacements and velocities (batch, n) each."""
         return jnp.concatenate([u, (0.5 * self.h) * v], axis=1) @ self.basis_inverse.T
@@ -165,11 +159,7 @@ class EigenSampleState(NamedTuple):
     re: jax.Array  # y's Re parts of the complex pairs, (batch, n_pairs)
     im: jax.Array  # y's Im parts of the complex pairs, (batch, n_pairs)
     real: jax.Array  # y's other columns, (batch, 2n - 2 n_pairs)
-    force: jax.Array
-
-    @property
-    def y(self):
-        return jnp.concatenate([self.re, self.im, self.real], axis=1)
+    force: jax.Array  # the contact forces at the state's time, (batch, nc)
 
 
 def _split_state(prop: EigenPropagator, y, force) -> EigenSampleState:
