@@ -200,14 +200,12 @@ def eigen_recorded(prop: EigenPropagator, state: EigenSampleState, snap: Snapsho
     m = prop.n_pairs
     parts = (state.re, state.im, state.real, state.force)
     part_rows = (rows[:m], rows[m : 2 * m], rows[2 * m :], force_rows)
-    wide = [p @ r for p, r in zip(parts, part_rows) if p.shape[1] > _FUSED_DEFLECTION_MAX_COLUMNS]
+    # a wide part as a matrix product, the narrow ones together as outer products fused into one pass
+    terms = [p @ r for p, r in zip(parts, part_rows) if p.shape[1] > _FUSED_DEFLECTION_MAX_COLUMNS]
     narrow = [(p, r) for p, r in zip(parts, part_rows) if 0 < p.shape[1] <= _FUSED_DEFLECTION_MAX_COLUMNS]
     if narrow:
-        wide.append(_outer_products([p for p, _ in narrow], [r for _, r in narrow]))
-    total = wide[0]
-    for term in wide[1:]:
-        total = total + term
-    return total
+        terms.append(_outer_products([p for p, _ in narrow], [r for _, r in narrow]))
+    return sum(terms[1:], terms[0])
 
 
 _FUSED_PRODUCT_MAX_TERMS = 16
