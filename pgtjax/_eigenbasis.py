@@ -13,8 +13,8 @@ shares its eigenvectors. In the real eigenbasis ``x~ = W z`` the map T is block 
 real eigenvalue and a 2x2 block ``[[a, b], [-b, a]]`` per complex pair ``a +- ib`` (columns Re w, Im w of
 the eigenvector w). A sample's step then costs O(n (nc + n_draws)) instead of the dense O(n^2) product: an
 elementwise update plus products with the (2n, nc) images of the contact directions and the noise input.
-The recorded quantities (u, v, contact deflections, observables) are formed from the eigen-coordinates,
-with one product per sample, only at the saved times.
+The recorded quantities (u, v, contact deflections and forces, observables) are formed from the
+eigen-coordinates, with one product per sample, only at the saved times.
 
 It is the same discretization, not an approximation: the results agree with the physical-coordinate step to
 rounding amplified by at most cond(W). cond(W) grows as the step shrinks (about 2 / (omega h) for a lightly
@@ -183,11 +183,11 @@ def eigen_recorded(prop: EigenPropagator, state: EigenSampleState, snap: Snapsho
     ``u C``, ``observation`` C (n, k)), in the order of ``pgtjax._montecarlo.quantity_names``.
 
     They are linear in the state, so they are formed straight from the eigen-coordinates with rows
-    ``W_u^T [I, 0, G, 0, C]`` and ``(2/h) W_v^T [0, I, 0, 0, 0]``: one matrix product with the real
-    eigenvalues' columns and the narrow parts (pairs, forces) as fused outer products. Forming ``(u, v)``
-    first took four more passes over the batch (the state's concatenation, the force correction, the
-    velocity scaling and the quantities' concatenation; docs/performance.md). Results agree with that route
-    to rounding."""
+    ``W_u^T [I, 0, G, 0, C]`` and ``(2/h) W_v^T [0, I, 0, 0, 0]``: a matrix product per wide part of the state
+    (Re, Im, real eigenvalues' columns, forces: more than ``_FUSED_DEFLECTION_MAX_COLUMNS`` columns) and the
+    narrow parts together as fused outer products. Forming ``(u, v)`` first took four more passes over the
+    batch (the state's concatenation, the force correction, the velocity scaling and the quantities'
+    concatenation; docs/performance.md). Results agree with that route to rounding."""
     n = prop.basis.shape[0] // 2
     nc = state.force.shape[1]
     to_u = prop.basis[:n].T  # (2n, n): u per eigen-coordinate

@@ -502,6 +502,46 @@ def test_gear_pair_eigen_step_with_every_part_fused_reproduces_the_physical_step
         np.testing.assert_allclose(a, b, rtol=0, atol=1e-10 * np.max(np.abs(b)), err_msg=name)
 
 
+def test_eigen_coordinates_without_contacts_or_complex_pairs_reproduce_the_physical_scheme():
+    """A heavily damped chain without contacts: every eigenvalue of its map is real (no Re or Im parts, no
+    forces), so the recorded quantities come from one matrix product alone; observables without an offset.
+    On the same draws the statistics agree with the physical-coordinate step to rounding."""
+    from pgtjax._eigenbasis import _FUSED_DEFLECTION_MAX_COLUMNS, eigen_propagator
+
+    n = 8
+    m, k = grounded_spring_chain(n, 400.0, 5)
+    noise = np.zeros((n, 1))
+    noise[n - 1, 0] = 1.0
+    system = pg.System(
+        mass=m,
+        stiffness=k,
+        damping=150.0 * (0.002 * k + 0.5 * m),
+        load=lambda t: jnp.eye(n)[2] * jnp.sin(4.0 * t),
+        noise_input=noise,
+        spectral_density=[0.5],
+    )
+    prop, reason = eigen_propagator(system, 0.01)
+    assert reason == "" and prop.n_pairs == 0 and 2 * n > _FUSED_DEFLECTION_MAX_COLUMNS
+    obs = pg.Observables(lambda t: jnp.stack([jnp.eye(n)[3] - jnp.eye(n)[4] * jnp.cos(t)]), names=["e"])
+    kw = dict(
+        n_samples=200,
+        key=KEY,
+        dt=0.01,
+        n_steps=60,
+        save_every=6,
+        progress=False,
+        observables=obs,
+        initial_covariance=np.diag(np.r_[np.full(n, 1e-3), np.full(n, 1e-2)]) ** 2,
+    )
+    eig = pg.monte_carlo(system, propagation="eigen", **kw)
+    phys = pg.monte_carlo(system, propagation="physical", **kw)
+    assert (eig.propagation, phys.propagation) == ("eigen", "physical")
+    for name in ("mean_u", "std_u", "mean_v", "std_v", "mean_obs", "std_obs"):
+        a, b = np.asarray(getattr(eig, name)), np.asarray(getattr(phys, name))
+        assert a.dtype == np.float64 and a.shape == b.shape
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-10 * np.max(np.abs(b)), err_msg=name)
+
+
 @pytest.mark.parametrize("widths", [(1, 1, 6), (1, 2, 20)])  # fused sum of outer products; matrix product
 def test_outer_products_of_the_eigen_step_equal_the_matrix_product(widths):
     from pgtjax._eigenbasis import _outer_products
