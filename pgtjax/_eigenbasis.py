@@ -183,10 +183,9 @@ def eigen_recorded(prop: EigenPropagator, state: EigenSampleState, snap: Snapsho
     ``u C``, ``observation`` C (n, k)), in the order of ``pgtjax._montecarlo.quantity_names``.
 
     They are linear in the state, so they are formed straight from the eigen-coordinates with rows
-    ``W_u^T [I, 0, G, 0, C]`` and ``(2/h) W_v^T [0, I, 0, 0, 0]``: a matrix product per wide part of the state
-    (Re, Im, real eigenvalues' columns, forces: more than ``_FUSED_DEFLECTION_MAX_COLUMNS`` columns) and the
-    narrow parts together as fused outer products. Forming ``(u, v)`` first took four more passes over the
-    batch (the state's concatenation, the force correction, the velocity scaling and the quantities'
+    ``W_u^T [I, 0, G, 0, C]`` and ``(2/h) W_v^T [0, I, 0, 0, 0]`` part by part (:func:`_parts_times`: a
+    matrix product per wide part, fused outer products for the narrow ones). Forming ``(u, v)`` first took
+    four more passes over the batch (the state's concatenation, the force correction, the velocity scaling and the quantities'
     concatenation; docs/performance.md). Results agree with that route to rounding."""
     n = prop.basis.shape[0] // 2
     nc = state.force.shape[1]
@@ -198,14 +197,9 @@ def eigen_recorded(prop: EigenPropagator, state: EigenSampleState, snap: Snapsho
     # z = y - force Q(t)^T, and the force columns are the forces themselves
     force_rows = (-_contact_input(prop, snap) @ rows).at[:, 2 * n + nc : 2 * n + 2 * nc].add(jnp.eye(nc))
     m = prop.n_pairs
-    parts = (state.re, state.im, state.real, state.force)
-    part_rows = (rows[:m], rows[m : 2 * m], rows[2 * m :], force_rows)
-    # a wide part as a matrix product, the narrow ones together as outer products fused into one pass
-    terms = [p @ r for p, r in zip(parts, part_rows) if p.shape[1] > _FUSED_DEFLECTION_MAX_COLUMNS]
-    narrow = [(p, r) for p, r in zip(parts, part_rows) if 0 < p.shape[1] <= _FUSED_DEFLECTION_MAX_COLUMNS]
-    if narrow:
-        terms.append(_outer_products([p for p, _ in narrow], [r for _, r in narrow]))
-    return sum(terms[1:], terms[0])
+    return _parts_times(
+        (state.re, state.im, state.real, state.force), (rows[:m], rows[m : 2 * m], rows[2 * m :], force_rows)
+    )
 
 
 _FUSED_PRODUCT_MAX_TERMS = 16
@@ -227,6 +221,23 @@ def _outer_products(columns, rows):
         for j in range(column.shape[1]):
             term = column[:, j : j + 1] * row[j][None, :]
             total = term if total is None else total + term
+    return total
+
+
+def _parts_times(parts, rows):
+    """``sum_i parts[i] @ rows[i]`` (batch, w) over the parts of a state with any columns (Re, Im, real
+    eigenvalues' columns, forces). A narrow part (at most ``_FUSED_DEFLECTION_MAX_COLUMNS`` columns) enters
+    as outer products, which fuse with the sum into one pass over the batch (as a small matrix product and
+    an add, each was a kernel of its own); a wide part as a matrix product."""
+    total = None
+    for part, part_rows in zip(parts, rows):
+        if not part.shape[1]:
+            continue
+        if part.shape[1] <= _FUSED_DEFLECTION_MAX_COLUMNS:
+            term = _outer_products([part], [part_rows])
+        else:
+            term = part @ part_rows
+        total = term if total is None else total + term
     return total
 
 
@@ -271,20 +282,6 @@ def eigen_sample_step(
         return EigenSampleState(re, im, real, state.force), ok
     g1 = s1.direction
     to_contacts = prop.basis[: system.n_dof].T @ g1  # (2n, nc): contact deflections per eigen-coordinate
-    # a narrow part enters as outer products, which fuse with the sum (as a small matrix product and an add,
-    # each was a kernel of its own); a wide part as a matrix product
-    delta_lin = None
-    for part, part_to_contacts in (
-        (re, to_contacts[:m]),
-        (im, to_contacts[m : 2 * m]),
-        (real, to_contacts[2 * m :]),
-    ):
-        if not part.shape[1]:
-            continue
-        if part.shape[1] <= _FUSED_DEFLECTION_MAX_COLUMNS:
-            term = _outer_products([part], [part_to_contacts])
-        else:
-            term = part @ part_to_contacts
-        delta_lin = term if delta_lin is None else delta_lin + term
+    delta_lin = _parts_times((re, im, real), (to_contacts[:m], to_contacts[m : 2 * m], to_contacts[2 * m :]))
     force, ok = solve_contact_forces(system, delta_lin, g1.T @ prop.a_inv @ g1, s1.contact_inputs)
     return EigenSampleState(re, im, real, force), ok
