@@ -1,15 +1,19 @@
-"""The GPU figures: every solver run once on the default device (a smoke test that reports where each result
-lives), then the ch. 3 planetary model over one carrier period: SL + recursion, and Monte Carlo of 100,000 and
-1,000,000 samples (targets on one H100: <= 10 s and <= 60 s), and the gear pair's Monte Carlo throughput.
+"""The GPU figures: the ch. 3 planetary model over one carrier period, Monte Carlo of 100,000 and 1,000,000
+samples (targets on one H100: <= 10 s and <= 60 s); the gear pair's Monte Carlo throughput; the planetary SL +
+recursion; then every solver once on the default device (a smoke test that reports where each result lives).
+The targets come first because a lent GPU is short-lived: the JSON is rewritten (atomically) after each stage,
+so a run stopped part-way keeps what it measured.
 
 Monte Carlo compiles once per batch shape (samples per device): one round of each shape the runs will use is
-timed apart as the compilation, then each sample count is timed once (long enough not to need repeats). On a machine without a
-GPU the script stops with exit status 1 unless ``--allow-cpu`` is given (then it measures the CPU: a check of the
-script, not a GPU figure; use ``--quick`` for small sizes).
+timed apart as the compilation, then each sample count is timed once (long enough not to need repeats). On a
+machine without a GPU the script stops with exit status 1 unless ``--allow-cpu`` is given (then it measures the
+CPU: a check of the script, not a GPU figure; use ``--quick`` for small sizes).
 
-Usage: python benchmarks/bench_gpu.py [--samples 100000,1000000] [--chunk-size 50000] [--periods 1.0]
-       [--allow-cpu] [--quick]
-Writes benchmarks/results/gpu.json (gpu_quick.json with --quick, cpu_check.json on a CPU).
+Usage: python benchmarks/bench_gpu.py [--samples 100000,1000000] [--chunk-size 100000] [--periods 1.0]
+       [--sl-repeats 3] [--allow-cpu] [--quick]
+       python benchmarks/bench_gpu.py --samples 100000 --periods 0.5 --chunk-sweep 5000,25000,100000
+Writes benchmarks/results/gpu.json (gpu_quick.json with --quick, cpu_check.json on a CPU); with --chunk-sweep,
+only the Monte Carlo at each chunk size, to gpu_chunks.json.
 """
 
 from __future__ import annotations
@@ -90,11 +94,79 @@ def _smoke(jax, pg, pm, study, dt, n_steps) -> dict:
     return out
 
 
+def _peak_bytes(jax) -> int | None:
+    """Peak memory in use on the first local device since the process started (None where JAX does not
+    report it, as on the CPU)."""
+    stats = jax.local_devices()[0].memory_stats()
+    return None if not stats else stats.get("peak_bytes_in_use")
+
+
+def _chunk_sweep(jax, pg, write, system, kw, mc_every, n_samples, args, where, on_gpu) -> int:
+    """Monte Carlo of ``n_samples`` at each chunk size of ``--chunk-sweep``: the first call (compilation
+    included) and the median of two more."""
+    rows = []
+    for chunk in [int(c) for c in args.chunk_sweep.split(",")]:
+
+        def mc(chunk=chunk):
+            r = pg.monte_carlo(
+                system,
+                n_samples=n_samples,
+                key=jax.random.key(0),
+                chunk_size=chunk,
+                save_every=mc_every,
+                progress=False,
+                **kw,
+            )
+            return jax.block_until_ready(r.std_u)
+
+        t = time.perf_counter()
+        mc()
+        first = time.perf_counter() - t
+        runs = []
+        for _ in range(2):
+            t = time.perf_counter()
+            mc()
+            runs.append(time.perf_counter() - t)
+        seconds = float(np.median(runs))
+        rows.append(
+            dict(
+                chunk_size=chunk,
+                first_call_s=first,
+                runs_s=runs,
+                median_s=seconds,
+                ns_per_sample_step=seconds / (n_samples * kw["n_steps"]) * 1e9,
+                peak_device_bytes_so_far=_peak_bytes(jax),
+            )
+        )
+        print(
+            f"chunk {chunk:>9,}: {seconds:7.2f} s ({rows[-1]['ns_per_sample_step']:.2f} ns per sample-step), "
+            f"first call {first:.1f} s"
+        )
+    name = "gpu_chunks" if on_gpu else "cpu_check_chunks"
+    path = write(
+        name,
+        dict(
+            command="python benchmarks/bench_gpu.py " + " ".join(sys.argv[1:]),
+            devices=where,
+            planetary=dict(n_samples=n_samples, n_steps=kw["n_steps"], mc_save_every=mc_every, chunks=rows),
+        ),
+    )
+    print("wrote", path)
+    return 0
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--samples", default="100000,1000000", help="Monte Carlo sample counts, comma-separated")
-    ap.add_argument("--chunk-size", type=int, default=50_000, help="samples per device per compiled batch")
+    ap.add_argument("--chunk-size", type=int, default=100_000, help="samples per device per compiled batch")
     ap.add_argument("--periods", type=float, default=1.0, help="carrier periods simulated")
+    ap.add_argument("--sl-repeats", type=int, default=3, help="timed SL runs after the first call")
+    ap.add_argument(
+        "--chunk-sweep",
+        default=None,
+        help="comma-separated chunk sizes: only time the first --samples count at each (first call, then two "
+        "timed calls) and write gpu_chunks.json",
+    )
     ap.add_argument("--allow-cpu", action="store_true", help="run on a CPU too (a check of the script)")
     ap.add_argument("--quick", action="store_true", help="small sizes (a check of the script)")
     args = ap.parse_args()
@@ -103,7 +175,7 @@ def main():
 
     import pgtjax as pg
 
-    if args.allow_cpu:  # a check on a CPU: one device per core (a GPU process keeps its GPUs either way)
+    if args.allow_cpu:  # a check on a CPU: one device per core (a GPU process keeps its GPUs as devices)
         pg.use_cpu_cores()
     from _common import write
 
@@ -129,22 +201,25 @@ def main():
     p = pm.default_params()
     n_steps = int(round(periods * study.carrier_period(p) / dt))
     save_every = 5  # as the study: about 20 saves per mesh period
-
-    print("every solver once (compilation included):")
-    smoke = _smoke(jax, pg, pm, study, dt, 200)
-
     system, kw, mc_every, _ = study._setup(p, dt, periods, n_saves=max(n_steps // save_every, 1))
-    sl = lambda: jax.block_until_ready(pg.solve_moments(system, save_every=mc_every, **kw).std_u)  # noqa: E731
-    t = time.perf_counter()
-    sl()
-    sl_first = time.perf_counter() - t
-    sl_runs = []
-    for _ in range(3):
-        t = time.perf_counter()
-        sl()
-        sl_runs.append(time.perf_counter() - t)
-    sl_median = sorted(sl_runs)[1]
-    print(f"planetary SL + recursion, {kw['n_steps']} steps: {sl_median:.2f} s (first call {sl_first:.1f} s)")
+
+    if args.chunk_sweep:
+        return _chunk_sweep(jax, pg, write, system, kw, mc_every, samples[0], args, where, on_gpu)
+    name = ("gpu" if on_gpu else "cpu_check") + ("_quick" if args.quick and on_gpu else "")
+    report = dict(
+        command="python benchmarks/bench_gpu.py " + " ".join(sys.argv[1:]),
+        devices=where,
+        complete=False,  # set when every stage has run: a stopped run's file says it is partial
+        planetary=dict(
+            periods=periods,
+            n_steps=kw["n_steps"],
+            dt_s=dt,
+            mc_save_every=mc_every,
+            chunk_size_per_device=chunk,
+            mc=[],
+        ),
+    )
+    save = lambda: write(name, report)  # noqa: E731
 
     def mc(n):
         r = pg.monte_carlo(
@@ -161,31 +236,37 @@ def main():
     # one round per batch shape the runs will use (monte_carlo's per-device size), timed apart: compilation
     n_dev = where["local_devices"]
     shapes = sorted({min(chunk, -(-n // n_dev)) for n in samples})
-    compile_rounds = {}
+    compile_rounds = report["planetary"]["mc_compile_round_s_per_device_batch"] = {}
     for per_device in shapes:
         t = time.perf_counter()
         mc(max(per_device * n_dev, 2))
         compile_rounds[str(per_device)] = time.perf_counter() - t
-    mc_rows = []
+        print(
+            f"planetary MC compilation round, {per_device:,} samples per device: {compile_rounds[str(per_device)]:.1f} s"
+        )
+        save()
     for n in samples:
         t = time.perf_counter()
-        mc(n)
+        std_u = mc(n)
         seconds = time.perf_counter() - t
         row = dict(
             n_samples=n,
             seconds=seconds,
             ns_per_sample_step=seconds / (n * kw["n_steps"]) * 1e9,
             target_s=GPU_TARGETS_S.get(n) if on_gpu and periods == 1.0 else None,
+            finite=bool(np.all(np.isfinite(np.asarray(std_u)))),
+            peak_device_bytes_so_far=_peak_bytes(jax),
         )
-        mc_rows.append(row)
+        report["planetary"]["mc"].append(row)
         target = f" (target {row['target_s']:.0f} s)" if row["target_s"] else ""
         print(
             f"planetary MC {n:>9,} samples x {kw['n_steps']} steps: {seconds:8.2f} s{target}, "
             f"{row['ns_per_sample_step']:.2f} ns per sample-step"
         )
+        save()
 
     gear = gp.build()
-    gear_samples, gear_steps = (4_000, 500) if args.quick else (200_000, 2_000)
+    gear_samples, gear_steps = (4_000, 500) if args.quick else (1_000_000, 2_000)
 
     def gear_mc():
         r = pg.monte_carlo(
@@ -203,42 +284,46 @@ def main():
     t = time.perf_counter()
     gear_mc()
     gear_first = time.perf_counter() - t
-    t = time.perf_counter()
-    gear_mc()
-    gear_s = time.perf_counter() - t
+    gear_runs = []
+    for _ in range(3):
+        t = time.perf_counter()
+        gear_mc()
+        gear_runs.append(time.perf_counter() - t)
+    gear_s = sorted(gear_runs)[1]
+    report["gear_pair"] = dict(
+        n_samples=gear_samples,
+        n_steps=gear_steps,
+        first_call_s=gear_first,
+        runs_s=gear_runs,
+        median_s=gear_s,
+        ns_per_sample_step=gear_s / (gear_samples * gear_steps) * 1e9,
+    )
     print(
-        f"gear pair MC {gear_samples:,} x {gear_steps:,}: {gear_s / (gear_samples * gear_steps) * 1e9:.2f} ns per sample-step"
+        f"gear pair MC {gear_samples:,} x {gear_steps:,}: {report['gear_pair']['ns_per_sample_step']:.2f} ns per "
+        f"sample-step (median of 3; first call {gear_first:.1f} s)"
     )
+    save()
 
-    name = "gpu" if on_gpu else "cpu_check"
-    path = write(
-        name + ("_quick" if args.quick and on_gpu else ""),
-        dict(
-            command="python benchmarks/bench_gpu.py " + " ".join(sys.argv[1:]),
-            devices=where,
-            smoke=smoke,
-            planetary=dict(
-                periods=periods,
-                n_steps=kw["n_steps"],
-                dt_s=dt,
-                mc_save_every=mc_every,
-                chunk_size_per_device=chunk,
-                sl_first_call_s=sl_first,
-                sl_runs_s=sl_runs,
-                sl_median_s=sl_median,
-                mc_compile_round_s_per_device_batch=compile_rounds,
-                mc=mc_rows,
-            ),
-            gear_pair=dict(
-                n_samples=gear_samples,
-                n_steps=gear_steps,
-                first_call_s=gear_first,
-                seconds=gear_s,
-                ns_per_sample_step=gear_s / (gear_samples * gear_steps) * 1e9,
-            ),
-        ),
-    )
-    print("wrote", path)
+    sl = lambda: jax.block_until_ready(pg.solve_moments(system, save_every=mc_every, **kw).std_u)  # noqa: E731
+    t = time.perf_counter()
+    sl()
+    sl_first = time.perf_counter() - t
+    sl_runs = []
+    for _ in range(args.sl_repeats):
+        t = time.perf_counter()
+        sl()
+        sl_runs.append(time.perf_counter() - t)
+    sl_median = float(np.median(sl_runs)) if sl_runs else None
+    report["planetary"].update(sl_first_call_s=sl_first, sl_runs_s=sl_runs, sl_median_s=sl_median)
+    shown = f"{sl_median:.2f} s (median of {len(sl_runs)})" if sl_runs else "not repeated"
+    print(f"planetary SL + recursion, {kw['n_steps']} steps: {shown}, first call {sl_first:.1f} s")
+    save()
+
+    print("every solver once (compilation included):")
+    report["smoke"] = _smoke(jax, pg, pm, study, dt, 200)
+    report["peak_device_bytes"] = _peak_bytes(jax)
+    report["complete"] = True
+    print("wrote", save())
     return 0
 
 
