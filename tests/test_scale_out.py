@@ -250,3 +250,17 @@ def test_cli_cpu_devices_warns_in_one_line_on_an_affected_jaxlib():
         assert len(lines) == 1 and lines[0].startswith("pgtjax: warning: jaxlib "), proc.stderr
     else:
         assert not lines, proc.stderr
+
+
+def test_default_chunk_size_is_larger_on_an_accelerator_and_gives_the_same_statistics(reference):
+    """With no ``chunk_size``, a CPU batch is 5,000 samples (all 203 here: one batch, as the reference) and a
+    GPU batch 100,000 (measured: a GPU runs small batches several times slower per sample)."""
+    from types import SimpleNamespace
+
+    from pgtjax._parallel import default_chunk_size
+
+    cpu = jax.devices("cpu")
+    assert default_chunk_size(cpu) == 5000 and default_chunk_size(cpu, cpu=10_000) == 10_000
+    assert default_chunk_size([SimpleNamespace(platform="gpu")]) == 100_000
+    assert default_chunk_size([*cpu, SimpleNamespace(platform="gpu")]) == 100_000
+    _assert_same(arrays(run(chunk_size=None)), reference, rtol=0.0)

@@ -58,8 +58,8 @@ def _add_gear_pair_options(p: argparse.ArgumentParser, quick: bool) -> None:
     p.add_argument(
         "--chunk-size",
         type=nonneg_int,
-        default=10_000,
-        help="MC samples per compiled batch; bounds memory (default %(default)s)",
+        default=None,
+        help="MC samples per compiled batch and device; bounds memory (default 10000 on a CPU, 100000 on a GPU)",
     )
     p.add_argument(
         "--out",

@@ -79,7 +79,12 @@ def _add_planetary_options(p: argparse.ArgumentParser, quick: bool) -> None:
     p.add_argument("--no-sweeps", action="store_true", help="skip the rim-thickness and support studies")
     p.add_argument("--no-sensitivities", action="store_true", help="skip the autodiff sensitivities")
     p.add_argument("--seed", type=seed, default=0, help="PRNG seed of the Monte Carlo")
-    p.add_argument("--chunk-size", type=nonneg_int, default=5000, help="MC samples per compiled batch")
+    p.add_argument(
+        "--chunk-size",
+        type=nonneg_int,
+        default=None,
+        help="MC samples per compiled batch and device; bounds memory (default 5000 on a CPU, 100000 on a GPU)",
+    )
     p.add_argument(
         "--out",
         type=Path,

@@ -68,7 +68,7 @@ class Response(eqx.Module):
         )
         return system, result
 
-    def monte_carlo(self, params, *, n_samples: int, key, save_every: int, chunk_size: int = 5000):
+    def monte_carlo(self, params, *, n_samples: int, key, save_every: int, chunk_size: int | None = None):
         """``(system, MonteCarloResult)`` of the nonlinear system at the design ``params``."""
         system, u0, p0, obs = self._start(params)
         result = monte_carlo(

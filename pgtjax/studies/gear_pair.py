@@ -25,6 +25,7 @@ from .._linearization import solve_moments
 from .._modal import modal_analysis
 from .._montecarlo import check_options as check_monte_carlo_options
 from .._montecarlo import monte_carlo
+from .._parallel import default_chunk_size, local_devices
 from .._results import MomentResult, MonteCarloResult, save_results
 from .._summary import write_summary
 from ..models import gear_pair as gp
@@ -154,12 +155,13 @@ def run_study(
     n_saves: int = 80,
     pdf_times=None,
     key=None,
-    chunk_size: int = 10_000,
+    chunk_size: int | None = None,
     progress: bool = True,
 ) -> GearPairStudy:
     """Run the three regimes. ``regimes`` = [(name, T_in, T_out)] (default: the parameter file's);
     ``n_samples = 0`` skips Monte Carlo; ``pdf_times`` (s) where MC histograms the mesh deflection (default:
-    3/4 of ``t_end``; each reported at the nearest saved time)."""
+    3/4 of ``t_end``; each reported at the nearest saved time); ``chunk_size``: MC samples per compiled batch
+    and device (default 10,000 on CPU devices, 100,000 on a GPU)."""
     params = gp.default_params() if params is None else params
     regimes = gp.load_regimes() if regimes is None else regimes
     key = jax.random.key(0) if key is None else key
@@ -178,6 +180,8 @@ def run_study(
         as_criterion(criterion)
     if n_samples:
         check_monte_carlo_options(n_samples, chunk_size)  # before SL: fail at once
+        if chunk_size is None:
+            chunk_size = default_chunk_size(local_devices(), cpu=10_000)
     b = float(params.half_backlash)
     out = []
     for index, (name, t_in, t_out) in enumerate(regimes):

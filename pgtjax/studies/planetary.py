@@ -141,7 +141,7 @@ def run_study(
     sl_refine=1,
     criteria=("force",),
     key=None,
-    chunk_size=5000,
+    chunk_size=None,
     progress=True,
     checkpoint=None,
     checkpoint_every=1,
