@@ -252,6 +252,27 @@ def test_cli_cpu_devices_warns_in_one_line_on_an_affected_jaxlib():
         assert not lines, proc.stderr
 
 
+@pytest.mark.parametrize("affected", [False, True])
+def test_cli_uses_every_core_by_default_unless_the_jaxlib_can_hang(affected):
+    """Without ``--cpu-devices`` the CLI starts one CPU device per available core on a jaxlib whose batched
+    LAPACK calls cannot hang (0.11.1 and later: simulated here by replacing the version test), and JAX's one
+    device on an affected jaxlib (0.10.0-0.11.0). Each case in a fresh process: the count is fixed at start."""
+    code = (
+        "import sys, jax, pgtjax._parallel as par, pgtjax.cli as cli\n"
+        f"par.lapack_batches_wait_on_pool = cli.lapack_batches_wait_on_pool = lambda version=None: {affected}\n"
+        "rc = cli.main(['gear-pair-modal', '--json'])\n"
+        "print('CPU DEVICES', len(jax.devices('cpu')), file=sys.stderr)\n"
+        "sys.exit(rc)\n"
+    )
+    proc = subprocess.run(
+        [sys.executable, "-c", code], env=_env(), capture_output=True, text=True, timeout=TIMEOUT_S
+    )
+    assert proc.returncode == 0, proc.stderr
+    expected = 1 if affected else len(os.sched_getaffinity(0))
+    assert f"CPU DEVICES {expected}" in proc.stderr, proc.stderr
+    assert "can hang" not in proc.stderr, proc.stderr
+
+
 def test_default_chunk_size_is_larger_on_an_accelerator_and_gives_the_same_statistics(reference):
     """With no ``chunk_size``, a CPU batch is 5,000 samples (all 203 here: one batch, as the reference) and a
     GPU batch 100,000 (measured: a GPU runs small batches several times slower per sample)."""

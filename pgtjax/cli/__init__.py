@@ -20,7 +20,7 @@ from pathlib import Path
 
 from .._failure import SolverError
 from .._files import interrupted_message
-from .._parallel import use_cpu_cores
+from .._parallel import lapack_batches_wait_on_pool, use_cpu_cores
 from . import back_to_back, design, gear_pair, planetary, ring
 from ._types import positive_int
 
@@ -39,8 +39,9 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         metavar="N",
         help="on a CPU, shard Monte Carlo samples and design batches over N JAX devices, one core each "
-        "(default: JAX's one CPU device, or the count forced in XLA_FLAGS). Faster, but see 'Scaling out' "
-        "in the README: a run on several CPU devices has hung",
+        "(default: one per core with jaxlib 0.11.1 or later; with jaxlib 0.10.0-0.11.0, on which a run on "
+        "several CPU devices has hung (README, 'Scaling out'), JAX's one CPU device; either way the count "
+        "forced in XLA_FLAGS if set)",
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     planetary.register(sub)
@@ -90,6 +91,8 @@ def main(argv=None) -> int:
                 use_cpu_cores(args.cpu_devices)
             for warning in caught:  # one line each, as the CLI's other messages
                 print(f"pgtjax: warning: {warning.message}", file=sys.stderr)
+        elif not lapack_batches_wait_on_pool():  # every core, on a jaxlib that cannot hang so
+            use_cpu_cores()
         if out is not None:
             _check_writable(out)
         return args.func(args)
