@@ -101,33 +101,30 @@ def _peak_bytes(jax) -> int | None:
     return None if not stats else stats.get("peak_bytes_in_use")
 
 
-def _chunk_sweep(jax, pg, write, system, kw, mc_every, n_samples, args, where, on_gpu) -> int:
+def _planetary_mc(jax, pg, system, kw, mc_every, n_samples, chunk):
+    """The planetary Monte Carlo of the benchmark (key 0, no progress bar), waited for; returns std_u."""
+    r = pg.monte_carlo(
+        system,
+        n_samples=n_samples,
+        key=jax.random.key(0),
+        chunk_size=chunk,
+        save_every=mc_every,
+        progress=False,
+        **kw,
+    )
+    return jax.block_until_ready(r.std_u)
+
+
+def _chunk_sweep(jax, pg, system, kw, mc_every, n_samples, args, where, on_gpu) -> int:
     """Monte Carlo of ``n_samples`` at each chunk size of ``--chunk-sweep``: the first call (compilation
     included) and the median of two more."""
+    from _common import timed, write
+
     rows = []
     for chunk in [int(c) for c in args.chunk_sweep.split(",")]:
-
-        def mc(chunk=chunk):
-            r = pg.monte_carlo(
-                system,
-                n_samples=n_samples,
-                key=jax.random.key(0),
-                chunk_size=chunk,
-                save_every=mc_every,
-                progress=False,
-                **kw,
-            )
-            return jax.block_until_ready(r.std_u)
-
-        t = time.perf_counter()
-        mc()
-        first = time.perf_counter() - t
-        runs = []
-        for _ in range(2):
-            t = time.perf_counter()
-            mc()
-            runs.append(time.perf_counter() - t)
-        seconds = float(np.median(runs))
+        first, seconds, runs, _ = timed(
+            _planetary_mc, jax, pg, system, kw, mc_every, n_samples, chunk, repeats=2
+        )
         rows.append(
             dict(
                 chunk_size=chunk,
@@ -177,7 +174,7 @@ def main():
 
     if args.allow_cpu:  # a check on a CPU: one device per core (a GPU process keeps its GPUs as devices)
         pg.use_cpu_cores()
-    from _common import write
+    from _common import timed, write
 
     from pgtjax.models import gear_pair as gp
     from pgtjax.models import planetary as pm
@@ -204,7 +201,7 @@ def main():
     system, kw, mc_every, _ = study._setup(p, dt, periods, n_saves=max(n_steps // save_every, 1))
 
     if args.chunk_sweep:
-        return _chunk_sweep(jax, pg, write, system, kw, mc_every, samples[0], args, where, on_gpu)
+        return _chunk_sweep(jax, pg, system, kw, mc_every, samples[0], args, where, on_gpu)
     name = ("gpu" if on_gpu else "cpu_check") + ("_quick" if args.quick and on_gpu else "")
     report = dict(
         command="python benchmarks/bench_gpu.py " + " ".join(sys.argv[1:]),
@@ -222,16 +219,7 @@ def main():
     save = lambda: write(name, report)  # noqa: E731
 
     def mc(n):
-        r = pg.monte_carlo(
-            system,
-            n_samples=n,
-            key=jax.random.key(0),
-            chunk_size=chunk,
-            save_every=mc_every,
-            progress=False,
-            **kw,
-        )
-        return jax.block_until_ready(r.std_u)
+        return _planetary_mc(jax, pg, system, kw, mc_every, n, chunk)
 
     # one round per batch shape the runs will use (monte_carlo's per-device size), timed apart: compilation
     n_dev = where["local_devices"]
@@ -281,15 +269,7 @@ def main():
         )
         return jax.block_until_ready(r.std_u)
 
-    t = time.perf_counter()
-    gear_mc()
-    gear_first = time.perf_counter() - t
-    gear_runs = []
-    for _ in range(3):
-        t = time.perf_counter()
-        gear_mc()
-        gear_runs.append(time.perf_counter() - t)
-    gear_s = sorted(gear_runs)[1]
+    gear_first, gear_s, gear_runs, _ = timed(gear_mc, repeats=3)
     report["gear_pair"] = dict(
         n_samples=gear_samples,
         n_steps=gear_steps,
