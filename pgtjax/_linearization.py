@@ -23,8 +23,10 @@ Gradients through the converged fixed point use the implicit function theorem (a
 is ``-J^-1 dR/dtheta``, written in closed form; reverse mode transposes it); the iterations themselves are not
 differentiated and cost nothing extra in a forward run, and under ``checkpoint`` their solution is kept rather
 than recomputed. The covariance update's dense products have derivative rules of their own (``custom_jvp``,
-using the symmetry of P) that refer to X_u and P only, so the checkpointed reverse pass does not recompute them
-(docs/gradients.md).
+using the symmetry of P) that refer to the map's displacement increments dX and to P only, so the
+checkpointed reverse pass does not recompute them (docs/gradients.md). The update is written with dX rather than
+the displacement rows X_u = [I 0] + dX: for a slow DOF the velocity covariance would otherwise be a difference
+of terms ~4 m / (h^2 k) times larger than itself (docs/corrections.md, C2d).
 """
 
 from __future__ import annotations
@@ -47,6 +49,7 @@ from ._newmark import (
     AbstractIntegrator,
     ConstantPropagator,
     Snapshot,
+    increment_map,
     resolve_integrator,
     snapshot,
 )
@@ -432,20 +435,20 @@ def _record(system, carry: _Carry, info: _FixedPointInfo, t, observables, cov_in
 
 def _moment_step(system: System, carry: _Carry, t1, h, criterion, integrator, rtol, max_iter, lu_const=None):
     """One step of the recursion. The covariance update ``Phi P Phi^T + Gamma Gamma^T`` is done blockwise
-    from ``Z = [E D] P`` and ``A = K_eff^-1 Z`` (Phi itself is never formed): with ``X_u = K_eff^-1 [E D]``
-    the displacement rows of Phi, ``X_u P = A``, ``X_u P X_u^T = K_eff^-1 Z [E D]^T K_eff^-T`` and the velocity
-    rows ``Phi_v = (2/h) X_u - W``, ``W = [(2/h) I, I]``, follow by the algebra spelled out below."""
+    from the displacement increments ``dX = K_eff^-1 [E - K_eff, D]`` of the one-step map (Phi itself is
+    never formed): with ``Z = [E - K_eff, D] P``, ``dX P = K_eff^-1 Z`` and ``dX P dX^T = K_eff^-1 Z
+    [E - K_eff, D]^T K_eff^-T`` (K_eff with the linearized contacts), and :func:`_assemble_covariance`
+    gives every block. ``E - K_eff`` is formed exactly (the integrator's ``displacement_increment``)."""
     n, nc = system.n_dof, system.n_contacts
     s0, mean, cov = carry.snap, carry.mean, carry.cov
     s1 = snapshot(system, t1)
     k0_lin, f0_lin = _linearized_terms(system, s0, carry.z, carry.lin)
     mats = integrator.step_matrices(system, s0._replace(stiffness=k0_lin), s1, h)
     e_mat, d_mat = mats.from_displacement, mats.from_velocity
-    p_top, p_bot = cov[:n, :], cov[n:, :]
-    z_mat = e_mat @ p_top + d_mat @ p_bot  # [E D] P, (n, 2n)
-    y_mat = z_mat[:, :n] @ e_mat.T + z_mat[:, n:] @ d_mat.T  # [E D] P [E D]^T, (n, n)
+    increment = mats.displacement_increment  # E - K_eff, contacts at the step's end excluded
+    if increment is None:  # a custom integrator's step matrices: by subtraction
+        increment = e_mat - mats.effective_stiffness
     mean_rhs = e_mat @ mean[:n] + d_mat @ mean[n:] + f0_lin + s1.load
-    noise_cov = mats.noise @ mats.noise.T
     # A: K_eff without the contacts; factorized once per run when K and C are constant (lu_const)
     lu = jax.scipy.linalg.lu_factor(mats.effective_stiffness) if lu_const is None else lu_const
     solve_a = lambda rhs: jax.scipy.linalg.lu_solve(lu, rhs)  # noqa: E731
@@ -455,10 +458,11 @@ def _moment_step(system: System, carry: _Carry, t1, h, criterion, integrator, rt
         w0 = jax.scipy.linalg.lu_solve(lu, g1, trans=1).T  # G^T A^-1, (nc, n)
         v0 = solve_a(g1)  # A^-1 G, (n, nc)
         coupling = w0 @ g1
+        w_noise = w0 @ mats.noise
         data = _StepData(
             coupling,
             w0 @ mean_rhs,
-            w0 @ (y_mat + noise_cov) @ w0.T,
+            _congruence(w0 @ jnp.concatenate([e_mat, d_mat], axis=1), cov) + w_noise @ w_noise.T,
             s1.contact_inputs,
             system.contacts.clearance,
         )
@@ -467,6 +471,7 @@ def _moment_step(system: System, carry: _Carry, t1, h, criterion, integrator, rt
         _, f1_lin = _linearized_terms(system, s1, z1, lin1)
         mean_rhs = mean_rhs - s1.load + f1_lin
         ke = lin1.k_e
+        increment = increment - (g1 * ke[None, :]) @ g1.T  # the end-of-step contacts join K_eff
 
         if n <= _DENSE_PHI_MAX_DOF:  # small systems: factorize the linearized K_eff directly
             lu_eff = jax.scipy.linalg.lu_factor(mats.effective_stiffness + (g1 * ke[None, :]) @ g1.T)
@@ -483,69 +488,68 @@ def _moment_step(system: System, carry: _Carry, t1, h, criterion, integrator, rt
     u_mean = solve(mean_rhs)
     g_u = solve(mats.noise)  # Gamma_u, (n, draws)
     g_v = (2.0 / h) * g_u + mats.velocity_noise  # Gamma_v
+    rhs_increment = jnp.concatenate([increment, d_mat], axis=1)  # [E - K_eff, D]
     if n <= _DENSE_PHI_MAX_DOF:
         # small systems: one dense Phi P Phi^T (fewer, larger operations win when each is tiny)
-        x_u = solve(jnp.concatenate([e_mat, d_mat], axis=1))  # displacement rows of Phi
+        dx_u = solve(rhs_increment)  # displacement increments' rows of Phi
         eye_u = jnp.eye(n, 2 * n, dtype=mean.dtype)
         eye_v = jnp.eye(n, 2 * n, k=n, dtype=mean.dtype)
-        phi = jnp.concatenate([x_u, (2.0 / h) * (x_u - eye_u) - eye_v], axis=0)
+        phi = jnp.concatenate([dx_u + eye_u, (2.0 / h) * dx_u - eye_v], axis=0)
         gamma = jnp.concatenate([g_u, g_v], axis=0)
         new_cov = phi @ cov @ phi.T + gamma @ gamma.T
         new_cov = 0.5 * (new_cov + new_cov.T)
     else:
-        a_mat = solve(z_mat)  # X_u P, (n, 2n)
-        u_cov = solve(solve(y_mat.T).T)  # X_u P X_u^T
-        new_cov = _assemble_covariance(cov, u_cov, _times_w(a_mat, h), g_u, g_v, h)
+        z_mat = rhs_increment @ cov  # [E - K_eff, D] P, (n, 2n)
+        c_mat = solve(z_mat)  # dX P
+        d_cov = solve(solve((z_mat @ rhs_increment.T).T).T)  # dX P dX^T
+        new_cov = _assemble_covariance(cov, d_cov, c_mat, g_u, g_v, h)
     new_mean = jnp.concatenate([u_mean, (2.0 / h) * (u_mean - mean[:n]) - mean[n:]])
     return _Carry(new_mean, new_cov, s1, z1, lin1), info
 
 
-def _times_w(a_mat, h):
-    """``a W^T`` for ``a`` (n, 2n): ``W = [(2/h) I, I]`` (the kinematic relation v1 = (2/h)(u1 - u0) - v0)."""
-    n = a_mat.shape[0]
-    return (2.0 / h) * a_mat[:, :n] + a_mat[:, n:]
+def _assemble_covariance(cov, d_cov, c_mat, g_u, g_v, h):
+    """``Phi P Phi^T + Gamma Gamma^T`` from the displacement increments ``dX = X_u - [I 0]`` of the one-step
+    map, given ``d_cov = dX P dX^T`` and ``c_mat = dX P`` (n, 2n): the velocity rows are
+    ``Phi_v = (2/h) dX - [0 I]`` (v1 = (2/h)(u1 - u0) - v0), so every block follows without forming Phi.
 
-
-def _assemble_covariance(cov, u_cov, xpw, g_u, g_v, h):
-    """``Phi P Phi^T + Gamma Gamma^T`` from the displacement rows ``X_u`` of Phi, given
-    ``u_cov = X_u P X_u^T`` and ``xpw = X_u P W^T``: the velocity rows are ``Phi_v = (2/h) X_u - W``,
-    ``W = [(2/h) I, I]``, so every block follows without forming Phi.
-    These block formulas assume a symmetric ``P``; the result is symmetrized so that rounding cannot feed
-    an antisymmetric part (which they would propagate unstably) into the next step."""
-    n = u_cov.shape[0]
-    wpw = (4.0 / h**2) * cov[:n, :n] + (2.0 / h) * (cov[:n, n:] + cov[n:, :n]) + cov[n:, n:]
-    p_uu = u_cov + g_u @ g_u.T
-    p_vu = (2.0 / h) * u_cov - xpw.T + g_v @ g_u.T  # Phi_v P Phi_u^T + Gamma_v Gamma_u^T
-    p_vv = (4.0 / h**2) * u_cov - (2.0 / h) * (xpw + xpw.T) + wpw + g_v @ g_v.T
+    Written with the increments, not ``X_u`` itself: for a slow DOF (omega h << 1) the velocity block would
+    otherwise be a difference of terms ~4 m / (h^2 k) times larger than the result, and rounding would drift
+    the variances step after step (docs/corrections.md). The block formulas assume a symmetric ``P``; the
+    result is symmetrized so that rounding cannot feed an antisymmetric part (which they would propagate
+    unstably) into the next step."""
+    n = d_cov.shape[0]
+    c_u, c_v = c_mat[:, :n], c_mat[:, n:]  # dX P [I 0]^T, dX P [0 I]^T
+    p_uu = cov[:n, :n] + c_u + c_u.T + d_cov + g_u @ g_u.T
+    p_vu = (
+        (2.0 / h) * (c_u + d_cov) - cov[n:, :n] - c_v.T + g_v @ g_u.T
+    )  # Phi_v P Phi_u^T + Gamma_v Gamma_u^T
+    p_vv = (4.0 / h**2) * d_cov - (2.0 / h) * (c_v + c_v.T) + cov[n:, n:] + g_v @ g_v.T
     new_cov = jnp.block([[p_uu, p_vu.T], [p_vu, p_vv]])
     return 0.5 * (new_cov + new_cov.T)
 
 
 @jax.custom_jvp
-def _quadratic_forms(x_u, cov, h):
-    """``(X_u P X_u^T, X_u P W^T)`` for the displacement rows ``X_u`` (n, 2n) of Phi and a symmetric ``P``
-    (2n, 2n): the two dense products of the covariance update (``X_u P``, then ``(X_u P) X_u^T``).
+def _quadratic_forms(dx, cov):
+    """``(dX P dX^T, dX P)`` for the displacement increments ``dX`` (n, 2n) of the one-step map and a
+    symmetric ``P`` (2n, 2n): the two dense products of the covariance update (``dX P``, then
+    ``(dX P) dX^T``).
 
-    The derivative rule refers to ``X_u`` and ``P`` only, never to ``X_u P``: the checkpointed reverse pass
+    The derivative rule refers to ``dX`` and ``P`` only, never to ``dX P``: the checkpointed reverse pass
     then skips both products when it recomputes the step, and its transpose costs four products of the size
-    of ``X_u P`` or smaller (autodiff of the plain products recomputes both, then transposes each: six).
+    of ``dX P`` or smaller (autodiff of the plain products recomputes both, then transposes each: six).
     ``P`` symmetric: the recursion keeps it exactly so (each step is symmetrized)."""
-    a_mat = x_u @ cov
-    return a_mat @ x_u.T, _times_w(a_mat, h)
+    a_mat = dx @ cov
+    return a_mat @ dx.T, a_mat
 
 
 def _quadratic_forms_jvp(primals, tangents):
-    x_u, cov, h = primals
-    dx, dcov, dh = (None if isinstance(t, SymbolicZero) else t for t in tangents)
-    n = x_u.shape[0]
-    u_cov, xpw = _quadratic_forms(x_u, cov, h)
-    dxp = jnp.zeros_like(x_u) if dx is None else dx @ cov  # dX P
-    da = dxp if dcov is None else dxp + x_u @ dcov  # d(X P)
-    du = da @ x_u.T + x_u @ dxp.T  # d(X P X^T) = d(X P) X^T + X P dX^T, P = P^T
-    dxpw = _times_w(da, h)  # d(X P W^T) at fixed h
-    if dh is not None:  # dW = [d(2/h) I, 0]; a constant time step (the usual case) costs nothing here
-        dxpw = dxpw + (-2.0 / h**2) * dh * (x_u @ cov[:, :n])
-    return (u_cov, xpw), (du, dxpw)
+    dx, cov = primals
+    ddx, dcov = (None if isinstance(t, SymbolicZero) else t for t in tangents)
+    d_cov, a_mat = _quadratic_forms(dx, cov)
+    dxp = jnp.zeros_like(dx) if ddx is None else ddx @ cov  # d(dX) P
+    da = dxp if dcov is None else dxp + dx @ dcov  # d(dX P)
+    dd = da @ dx.T + dx @ dxp.T  # d(dX P dX^T) = d(dX P) dX^T + dX P d(dX)^T, P = P^T
+    return (d_cov, a_mat), (dd, da)
 
 
 _quadratic_forms.defjvp(_quadratic_forms_jvp, symbolic_zeros=True)
@@ -585,25 +589,28 @@ def _moment_step_constant(
         X_a = X - A^-1 G0 [K_e0 G0^T, 0]                   (start-of-step contacts, moved into E)
         X_u = X_a - A^-1 G1 (I + K_e1 S)^-1 K_e1 G1^T X_a  (end-of-step contacts, Woodbury)
 
-    with ``S = G1^T A^-1 G1``. The fixed point needs only the contact rows ``G1^T X_a P`` (nc x 2n); once
-    ``K_e1`` is known the covariance update costs two dense products (``X_u P`` and ``(X_u P) X_u^T``) and
-    matrix products of width nc, instead of triangular solves per step.
+    with ``S = G1^T A^-1 G1``. Both corrections apply unchanged to the increment map ``dX = X - [I 0]``
+    (the propagator's ``dx``), which the covariance update uses. The fixed point needs only the contact rows
+    ``G1^T X_a P`` (nc x 2n); once ``K_e1`` is known the covariance update costs two dense products
+    (``dX_u P`` and ``(dX_u P) dX_u^T``) and matrix products of width nc, instead of triangular solves per step.
     """
     n, nc = system.n_dof, system.n_contacts
     s0, mean, cov = carry.snap, carry.mean, carry.cov
     # kept by the checkpointed reverse pass: the model's time functions are not evaluated again there
     s1 = checkpoint_name(_varying_snapshot(system, t1), _COVARIANCE_NAME)
     noise, v_noise = integrator.noise_matrices(system, s0, s1, h)
-    x, a_inv = prop.x, prop.a_inv
+    dx, a_inv = increment_map(prop), prop.a_inv
     if nc:
         g0, g1 = s0.direction, s1.direction
         clearance = system.contacts.clearance
         lin0 = carry.lin
         inv_g = a_inv @ jnp.concatenate([g0, g1, noise, (s0.load + s1.load)[:, None]], axis=1)
         b0, v1, g_a, m_load = inv_g[:, :nc], inv_g[:, nc : 2 * nc], inv_g[:, 2 * nc : -1], inv_g[:, -1]
-        x_a = x - jnp.pad(b0 @ (lin0.k_e[:, None] * g0.T), ((0, 0), (0, n)))  # X_a
-        m_a = x_a @ mean + m_load - b0 @ (lin0.f_0 - lin0.k_e * carry.z[:nc])  # mean of A^-1 (rhs w/o K_e1)
-        gx = g1.T @ x_a  # G1^T X_a, (nc, 2n)
+        dx_a = dx - jnp.pad(b0 @ (lin0.k_e[:, None] * g0.T), ((0, 0), (0, n)))  # X_a - [I 0]
+        m_a = (
+            mean[:n] + dx_a @ mean + m_load - b0 @ (lin0.f_0 - lin0.k_e * carry.z[:nc])
+        )  # A^-1 (rhs w/o K_e1)
+        gx = g1.T @ dx_a + jnp.pad(g1.T, ((0, 0), (0, n)))  # G1^T X_a, (nc, 2n)
         proj = g1.T @ jnp.concatenate([g_a, m_a[:, None], v1], axis=1)  # G1^T [Gamma_a, m_a, A^-1 G1]
         gn, coupling = proj[:, : -1 - nc], proj[:, -nc:]
         # the contacts' covariance needs G1^T X_a P only (nc rows), not X_a P itself
@@ -617,18 +624,18 @@ def _moment_step_constant(
         rhs = jnp.concatenate([gx, gn, (data.mean - coupling @ f1)[:, None]], axis=1)
         q = ke1[:, None] * (terms.r_inv @ rhs)
         corr = v1 @ q.at[:, -1].add(f1)
-        x_u = x_a - corr[:, : 2 * n]
+        dx_u = dx_a - corr[:, : 2 * n]
         g_u = g_a - corr[:, 2 * n : -1]
         u_mean = m_a - corr[:, -1]
     else:
         z1, lin1 = carry.z, carry.lin
         info = _FixedPointInfo(jnp.array(0), jnp.array(0.0), jnp.array(True))
         inv_g = a_inv @ jnp.concatenate([noise, (s0.load + s1.load)[:, None]], axis=1)
-        x_u, g_u = x, inv_g[:, :-1]
-        u_mean = x @ mean + inv_g[:, -1]
-    u_cov, xpw = _quadratic_forms(x_u, cov, h)  # X_u P X_u^T, X_u P W^T
+        dx_u, g_u = dx, inv_g[:, :-1]
+        u_mean = mean[:n] + dx @ mean + inv_g[:, -1]
+    d_cov, c_mat = _quadratic_forms(dx_u, cov)  # dX_u P dX_u^T, dX_u P
     g_v = (2.0 / h) * g_u + v_noise
-    new_cov = _assemble_covariance(cov, u_cov, xpw, g_u, g_v, h)
+    new_cov = _assemble_covariance(cov, d_cov, c_mat, g_u, g_v, h)
     new_mean = jnp.concatenate([u_mean, (2.0 / h) * (u_mean - mean[:n]) - mean[n:]])
     return _Carry(new_mean, new_cov, s1, z1, lin1), info
 

@@ -100,11 +100,18 @@ class _AverageAcceleration(AbstractIntegrator):
             from_velocity(mass, h),
         )
 
+    def displacement_increment(self, stiffness0, stiffness1):
+        """``E - K_eff = -(K0 + K1)``, exactly: what ``[E, D]`` becomes when the step map gives the
+        displacement increment ``u1 - u0`` instead of ``u1``. Forming it by subtraction would lose the
+        digits that the ``(4/h^2) M`` terms of E and K_eff share (override it with ``effective_matrices``)."""
+        return -(stiffness0 + stiffness1)
+
     def step_matrices(self, system: System, s0: Snapshot, s1: Snapshot, h) -> StepMatrices:
         c_mid = 0.5 * (s0.damping + s1.damping)
         k_eff, from_u, from_v = self.effective_matrices(system.mass, c_mid, s0.stiffness, s1.stiffness, h)
         noise, v_noise = self.noise_matrices(system, s0, s1, h)
-        return StepMatrices(k_eff, from_u, from_v, noise, v_noise)
+        increment = self.displacement_increment(s0.stiffness, s1.stiffness)
+        return StepMatrices(k_eff, from_u, from_v, noise, v_noise, increment)
 
     def init(self, system: System, h) -> ConstantPropagator | None:
         """:class:`ConstantPropagator` of ``system`` for step ``h``, or None if K or C is time-varying."""
@@ -115,7 +122,8 @@ class _AverageAcceleration(AbstractIntegrator):
         k_eff, from_u, from_v = self.effective_matrices(M, C, K, K, h)
         a_inv = jnp.linalg.solve(k_eff, jnp.eye(n, dtype=M.dtype))
         rhs = jnp.concatenate([from_u, from_v], axis=1)
-        return ConstantPropagator(a_inv, a_inv @ rhs)
+        increment = jnp.concatenate([self.displacement_increment(K, K), from_v], axis=1)
+        return ConstantPropagator(a_inv, a_inv @ rhs, a_inv @ increment)
 
 
 class Newmark(_AverageAcceleration):
@@ -207,15 +215,29 @@ class StepMatrices(NamedTuple):
     from_velocity: jax.Array  # D (n, n)
     noise: jax.Array  # [B_N, B_P] (n, n_draws)
     velocity_noise: jax.Array  # velocity correction per draw (n, n_draws)
+    # E - K_eff (n, n), exact (the integrator's displacement_increment); None: formed by subtraction
+    displacement_increment: jax.Array | None = None
 
 
 class ConstantPropagator(NamedTuple):
     """Step operators of a system whose K and C do not depend on time (contacts excluded), formed once
     per run: ``A^-1`` with ``A = K + (2/h) C + (4/h^2) M`` (the contact-free K_eff) and
-    ``X = A^-1 [E, D]``, the displacement rows of the contact-free one-step map of ``(u, v)``."""
+    ``X = A^-1 [E, D]``, the displacement rows of the contact-free one-step map of ``(u, v)``, and
+    ``dX = X - [I 0] = A^-1 [E - A, D]``, the map of the displacement increment, formed without the
+    subtraction (None: :func:`increment_map` subtracts)."""
 
     a_inv: jax.Array  # (n, n)
     x: jax.Array  # (n, 2n)
+    dx: jax.Array | None = None  # (n, 2n)
+
+
+def increment_map(prop: ConstantPropagator) -> jax.Array:
+    """``dX = X - [I 0]`` of ``prop``: its exact ``dx`` where given (a custom integrator's propagator may
+    have only ``x``), else by subtraction."""
+    if prop.dx is not None:
+        return prop.dx
+    n = prop.x.shape[0]
+    return prop.x - jnp.eye(n, 2 * n, dtype=prop.x.dtype)
 
 
 def velocity_update(u0, v0, u1, h):
