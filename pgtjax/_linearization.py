@@ -520,9 +520,8 @@ def _assemble_covariance(cov, d_cov, c_mat, g_u, g_v, h):
     n = d_cov.shape[0]
     c_u, c_v = c_mat[:, :n], c_mat[:, n:]  # dX P [I 0]^T, dX P [0 I]^T
     p_uu = cov[:n, :n] + c_u + c_u.T + d_cov + g_u @ g_u.T
-    p_vu = (
-        (2.0 / h) * (c_u + d_cov) - cov[n:, :n] - c_v.T + g_v @ g_u.T
-    )  # Phi_v P Phi_u^T + Gamma_v Gamma_u^T
+    # Phi_v P Phi_u^T + Gamma_v Gamma_u^T
+    p_vu = (2.0 / h) * (c_u + d_cov) - cov[n:, :n] - c_v.T + g_v @ g_u.T
     p_vv = (4.0 / h**2) * d_cov - (2.0 / h) * (c_v + c_v.T) + cov[n:, n:] + g_v @ g_v.T
     new_cov = jnp.block([[p_uu, p_vu.T], [p_vu, p_vv]])
     return 0.5 * (new_cov + new_cov.T)
@@ -607,9 +606,8 @@ def _moment_step_constant(
         inv_g = a_inv @ jnp.concatenate([g0, g1, noise, (s0.load + s1.load)[:, None]], axis=1)
         b0, v1, g_a, m_load = inv_g[:, :nc], inv_g[:, nc : 2 * nc], inv_g[:, 2 * nc : -1], inv_g[:, -1]
         dx_a = dx - jnp.pad(b0 @ (lin0.k_e[:, None] * g0.T), ((0, 0), (0, n)))  # X_a - [I 0]
-        m_a = (
-            mean[:n] + dx_a @ mean + m_load - b0 @ (lin0.f_0 - lin0.k_e * carry.z[:nc])
-        )  # A^-1 (rhs w/o K_e1)
+        # the mean of A^-1 (rhs without K_e1)
+        m_a = mean[:n] + dx_a @ mean + m_load - b0 @ (lin0.f_0 - lin0.k_e * carry.z[:nc])
         gx = g1.T @ dx_a + jnp.pad(g1.T, ((0, 0), (0, n)))  # G1^T X_a, (nc, 2n)
         proj = g1.T @ jnp.concatenate([g_a, m_a[:, None], v1], axis=1)  # G1^T [Gamma_a, m_a, A^-1 G1]
         gn, coupling = proj[:, : -1 - nc], proj[:, -nc:]
