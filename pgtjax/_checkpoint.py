@@ -86,5 +86,16 @@ def load_checkpoint(path, description: dict, *, what: str) -> dict[str, np.ndarr
     differ = sorted(k for k in set(saved) | set(expected) if saved.get(k) != expected.get(k))
     if differ:
         detail = "; ".join(f"{k}: checkpoint {saved.get(k)!r}, this run {expected.get(k)!r}" for k in differ)
-        raise ValueError(f"cannot resume {what} from {str(path)!r}: it was written by another run ({detail})")
+        hint = ""
+        if set(differ) & {
+            "devices",
+            "samples_per_device",
+        }:  # the defaults follow the machine: say how to match
+            hint = (
+                "; resume with the interrupted run's device count and batch size (`pgtjax --cpu-devices N`, "
+                "`--chunk-size`; in Python `pg.use_cpu_cores(N)`, `chunk_size=`)"
+            )
+        raise ValueError(
+            f"cannot resume {what} from {str(path)!r}: it was written by another run ({detail}){hint}"
+        )
     return arrays

@@ -103,14 +103,30 @@ class _AverageAcceleration(AbstractIntegrator):
     def displacement_increment(self, stiffness0, stiffness1):
         """``E - K_eff = -(K0 + K1)``, exactly: what ``[E, D]`` becomes when the step map gives the
         displacement increment ``u1 - u0`` instead of ``u1``. Forming it by subtraction would lose the
-        digits that the ``(4/h^2) M`` terms of E and K_eff share (override it with ``effective_matrices``)."""
+        digits that the ``(4/h^2) M`` terms of E and K_eff share (``docs/corrections.md`` C2d).
+
+        A subclass that overrides ``effective_matrices``, ``step_matrices`` or ``init`` and not this method
+        gets ``E - K_eff`` by subtraction instead (:meth:`_exact_increment`): correct for any variant, with
+        the rounding drift of slow DOFs that this method avoids; override this method too to avoid it."""
         return -(stiffness0 + stiffness1)
+
+    def _exact_increment(self) -> bool:
+        """Whether :meth:`displacement_increment` matches this integrator's matrices: the built-in ones, or
+        a subclass that overrides it along with the methods that form them."""
+        base, cls = _AverageAcceleration, type(self)
+        if cls.displacement_increment is not base.displacement_increment:
+            return True
+        return all(
+            getattr(cls, m) is getattr(base, m) for m in ("effective_matrices", "step_matrices", "init")
+        )
 
     def step_matrices(self, system: System, s0: Snapshot, s1: Snapshot, h) -> StepMatrices:
         c_mid = 0.5 * (s0.damping + s1.damping)
         k_eff, from_u, from_v = self.effective_matrices(system.mass, c_mid, s0.stiffness, s1.stiffness, h)
         noise, v_noise = self.noise_matrices(system, s0, s1, h)
-        increment = self.displacement_increment(s0.stiffness, s1.stiffness)
+        increment = (
+            self.displacement_increment(s0.stiffness, s1.stiffness) if self._exact_increment() else None
+        )
         return StepMatrices(k_eff, from_u, from_v, noise, v_noise, increment)
 
     def init(self, system: System, h) -> ConstantPropagator | None:
@@ -122,6 +138,8 @@ class _AverageAcceleration(AbstractIntegrator):
         k_eff, from_u, from_v = self.effective_matrices(M, C, K, K, h)
         a_inv = jnp.linalg.solve(k_eff, jnp.eye(n, dtype=M.dtype))
         rhs = jnp.concatenate([from_u, from_v], axis=1)
+        if not self._exact_increment():  # a variant's matrices: dX by subtraction (increment_map)
+            return ConstantPropagator(a_inv, a_inv @ rhs)
         increment = jnp.concatenate([self.displacement_increment(K, K), from_v], axis=1)
         return ConstantPropagator(a_inv, a_inv @ rhs, a_inv @ increment)
 

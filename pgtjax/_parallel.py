@@ -19,8 +19,8 @@ def default_chunk_size(devices, cpu: int = CPU_CHUNK_SIZE) -> int:
     """Monte Carlo samples per compiled batch and device when none is given: ``cpu`` where every device is a
     CPU, else 100,000. A GPU runs each time step as a few kernel launches whose cost a small batch does not
     cover (one H100, planetary MC: 26.9 ns per sample-step at 5,000 samples per batch, 10.3 at 20,000, 5.1
-    at 100,000; ``benchmarks/results/gpu_chunks.json``); on a CPU larger batches gain nothing and take more
-    memory."""
+    at 100,000; ``benchmarks/results/gpu_chunks.json``); on CPU devices the default stays what it always
+    was, and memory stays small."""
     return cpu if all(d.platform == "cpu" for d in devices) else ACCELERATOR_CHUNK_SIZE
 
 

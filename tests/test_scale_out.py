@@ -165,10 +165,13 @@ def test_design_batch_killed_after_second_checkpoint_resumes(tmp_path):
 def test_resume_refuses_another_run_and_bad_paths(tmp_path):
     checkpoint = tmp_path / "mc.npz"
     run(chunk_size=100, checkpoint=checkpoint)
-    with pytest.raises(ValueError, match="samples_per_device"):
+    with pytest.raises(ValueError, match="samples_per_device.*--chunk-size"):  # and how to match it
         run(chunk_size=50, checkpoint=checkpoint, resume=True)
-    with pytest.raises(ValueError, match="run: checkpoint"):  # another key: the run's fingerprint differs
+    with pytest.raises(
+        ValueError, match="run: checkpoint"
+    ) as err:  # another key: the run's fingerprint differs
         run(chunk_size=100, checkpoint=checkpoint, resume=True, key=jax.random.key(18))
+    assert "--chunk-size" not in str(err.value)  # the hint only where sizes differ
     with pytest.raises(ValueError, match="no checkpoint"):
         run(checkpoint=tmp_path / "missing.npz", resume=True)
     with pytest.raises(ValueError, match="needs a `checkpoint`"):

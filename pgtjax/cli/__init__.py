@@ -85,7 +85,7 @@ def main(argv=None) -> int:
     main_thread = threading.current_thread() is threading.main_thread()  # handlers live there only
     previous = signal.signal(signal.SIGINT, interrupted) if main_thread else None
     try:
-        if args.cpu_devices is not None:  # before any JAX computation (docs/performance.md: opt-in, why)
+        if args.cpu_devices is not None:  # before any JAX computation (docs/performance.md: the jaxlib hang)
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always")
                 use_cpu_cores(args.cpu_devices)
