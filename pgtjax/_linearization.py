@@ -588,8 +588,9 @@ def _moment_step_constant(
         X_a = X - A^-1 G0 [K_e0 G0^T, 0]                   (start-of-step contacts, moved into E)
         X_u = X_a - A^-1 G1 (I + K_e1 S)^-1 K_e1 G1^T X_a  (end-of-step contacts, Woodbury)
 
-    with ``S = G1^T A^-1 G1``. Both corrections apply unchanged to the increment map ``dX = X - [I 0]``
-    (the propagator's ``dx``), which the covariance update uses. The fixed point needs only the contact rows
+    with ``S = G1^T A^-1 G1``. The covariance update uses the increments ``X_u - [I 0]``: they follow from the
+    propagator's ``dx = X - [I 0]`` by the same two corrections (the second still built from ``G1^T X_a``,
+    whose rows are ``G1^T (X_a - [I 0]) + [G1^T, 0]``). The fixed point needs only the contact rows
     ``G1^T X_a P`` (nc x 2n); once ``K_e1`` is known the covariance update costs two dense products
     (``dX_u P`` and ``(dX_u P) dX_u^T``) and matrix products of width nc, instead of triangular solves per step.
     """
