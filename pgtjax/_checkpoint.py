@@ -87,10 +87,8 @@ def load_checkpoint(path, description: dict, *, what: str) -> dict[str, np.ndarr
     if differ:
         detail = "; ".join(f"{k}: checkpoint {saved.get(k)!r}, this run {expected.get(k)!r}" for k in differ)
         hint = ""
-        if set(differ) & {
-            "devices",
-            "samples_per_device",
-        }:  # the defaults follow the machine: say how to match
+        # the defaults of these follow the machine: say how to match them
+        if set(differ) & {"devices", "samples_per_device"}:
             hint = (
                 "; resume with the interrupted run's device count and batch size (`pgtjax --cpu-devices N`, "
                 "`--chunk-size`; in Python `pg.use_cpu_cores(N)`, `chunk_size=`)"

@@ -66,8 +66,8 @@ class EigenPropagator(eqx.Module):
     a_inv: jax.Array  # A^-1 (m/N), (n, n): the contact coupling G^T A^-1 G
     scale: jax.Array  # diagonal of the block-diagonal map: a (pairs, twice) and the real eigenvalues, (2n,)
     cross: jax.Array  # off-diagonal b of the 2x2 blocks (+b on Re rows, -b on Im rows), (n_pairs,)
+    condition: jax.Array  # cond(W), 0-d: a leaf, since a static value would recompile the sampler per design
     h: float = eqx.field(static=True)  # step (s) the map was formed for
-    condition: float = eqx.field(static=True)  # cond(W)
 
     @property
     def n_pairs(self) -> int:
@@ -138,8 +138,8 @@ def eigen_propagator(system: System, h: float) -> tuple[EigenPropagator | None, 
         jnp.asarray(a_inv),
         jnp.asarray(scale),
         jnp.asarray(b),
+        jnp.asarray(condition, jnp.float64),
         h,
-        condition,
     )
     return prop, ""
 

@@ -74,9 +74,11 @@ def test_two_dof_optimum_matches_the_hand_derived_one():
 def test_bounds_are_never_violated(transform):
     # a tiny cost pushes both stiffnesses up; the upper bound stops them
     lower, upper = 0.5, 5.0
+    problem = chain_problem(1e-5, lower, upper, transform)
+    evaluate = eqx.filter_jit(jax.value_and_grad(problem.value))
     for optimizer in (None, optax.adam(0.3)):
         result = pd.optimize(
-            chain_problem(1e-5, lower, upper, transform),
+            problem,
             optimizer=optimizer,
             max_iter=15,
             rtol=0.0,
@@ -87,8 +89,14 @@ def test_bounds_are_never_violated(transform):
         assert np.all(values >= lower) and np.all(values <= upper)
         # the coordinates themselves stay in their bounds (the physical values are clipped by the maps
         # anyway, so the check above alone could not fail)
-        lo, hi = chain_problem(1e-5, lower, upper, transform).space.bounds()
+        lo, hi = problem.space.bounds()
         zs = np.array([e["z"] for e in result.history])
+        # every iterate's recorded value and gradient are those of its projected point, not the line search's
+        for e in (result.history[1], result.history[-1]):
+            z = jnp.asarray(e["z"])
+            value, grad = evaluate(z)
+            projected = np.linalg.norm(z - problem.space.project(z - grad))
+            np.testing.assert_allclose([e["objective"], e["gradient_norm"]], [value, projected], rtol=1e-9)
         assert np.all(zs >= lo) and np.all(zs <= hi)
         params = result.params
         assert lower <= float(params.k1) <= upper and lower <= float(params.k2) <= upper

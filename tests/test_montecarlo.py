@@ -661,3 +661,37 @@ def test_affine_piece_shortcut_equals_the_residual_iteration(case):
     # a NaN deflection is not taken for an exact step
     d_nan, ok_nan = solve_contacts_batch(delta_lin.at[0].set(jnp.nan), coupling, k, b, pg.Backlash())
     assert not bool(ok_nan[0]) and bool(jnp.all(ok_nan[1:]))
+
+
+def test_designs_differing_only_in_values_share_one_compiled_sampler(caplog):
+    """Two stiffnesses of one model run on one compiled Monte Carlo chunk: nothing value-dependent in the
+    eigen-coordinate propagator (the condition number of its basis, say) is a static part of the run, which
+    would compile the sampler anew for every design of a sweep or an optimization."""
+    import logging
+
+    from pgtjax._eigenbasis import eigen_propagator
+
+    def system(scale):
+        k = scale * np.array([[300.0, -100.0], [-100.0, 100.0]])
+        return pg.System(
+            mass=np.diag([1.0, 2.0]),
+            stiffness=k,
+            damping=0.02 * k,
+            load=[0.5, 0.0],
+            noise_input=[[1.0], [0.0]],
+            spectral_density=1e-3,
+            contacts=pg.Contacts(
+                direction=[[1.0], [0.0]], stiffness=[400.0], clearance=[0.002], names=["stop"]
+            ),
+        )
+
+    props = [eigen_propagator(system(s), 0.01)[0] for s in (1.0, 1.3)]
+    assert all(p is not None for p in props) and props[0].n_pairs == props[1].n_pairs  # equal shapes
+    assert float(props[0].condition) != float(props[1].condition)
+    with jax.log_compiles(True), caplog.at_level(logging.WARNING):
+        for s in (1.0, 1.3):
+            pg.monte_carlo(
+                system(s), n_samples=64, key=KEY, dt=0.01, n_steps=20, save_every=5, progress=False
+            )
+    compiled = [r for r in caplog.records if "compilation of jit(_chunk)" in r.getMessage()]
+    assert len(compiled) <= 1, f"{len(compiled)} compilations for two designs of equal shape"

@@ -4,6 +4,7 @@ option against Lin & Parker's published table, elastic -> rigid convergence, MC 
 import copy
 import dataclasses
 import json
+import logging
 import math
 import tomllib
 
@@ -555,16 +556,21 @@ def test_per_cycle_envelope_and_si_prefixes():
     ]
 
 
-def test_sweep_figure_names_curves_that_coincide():
-    """sun_u does not depend on the rim thickness (the sun's mean torque balance); the figure says so."""
+def test_sweep_figure_names_curves_that_coincide(caplog):
+    """sun_u does not depend on the rim thickness (the sun's mean torque balance); the figure says so. The
+    variants, each with its own contact-point observables, share one compiled SL solver."""
     from pgtjax.studies import planetary as study
 
     p = small_params()
-    sweep = study.parameter_sweep(p, study.rim_thickness_variants(p, (0.1, 0.15)), periods=0.02, n_saves=4)
+    variants = study.rim_thickness_variants(p, (0.1, 0.12, 0.15))
+    with jax.log_compiles(True), caplog.at_level(logging.WARNING):
+        sweep = study.parameter_sweep(p, variants, periods=0.02, n_saves=4)
+    compiled = [r for r in caplog.records if "compilation of jit(_solve_moments_jit)" in r.getMessage()]
+    assert len(compiled) <= 1, f"{len(compiled)} compilations for 3 variants of equal shape"
     same = study.coinciding(sweep, study.FIGURE_DOFS)
     assert "sun_u" in same and "ring_node2_tangential" not in same
     fig = study.sweep_figure(sweep, "test")
-    assert "sun_u: the 2 curves coincide" in fig._suptitle.get_text()
+    assert "sun_u: the 3 curves coincide" in fig._suptitle.get_text()
 
 
 def test_nearly_constant_curve_is_drawn_flat():

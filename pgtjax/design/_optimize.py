@@ -1,5 +1,5 @@
-"""The optimization loop: any optax transformation, one jitted update (value, gradient, update,
-projection), stopping rules, a history written after every iteration and resumable from it."""
+"""The optimization loop: any optax transformation, a jitted update (update, projection, the line
+search's value and gradient), stopping rules, a history written after every iteration and resumable from it."""
 
 from __future__ import annotations
 
@@ -70,14 +70,12 @@ def _projected_gradient(problem: DesignProblem, z, grad):
     return z - problem.space.project(z - grad)
 
 
-def _evaluate(problem: DesignProblem, z):
-    value, grad = jax.value_and_grad(problem.value)(z)
-    return value, grad
-
-
 @eqx.filter_jit
-def _first(problem: DesignProblem, z):
-    value, grad = _evaluate(problem, z)
+def _evaluate(problem: DesignProblem, z):
+    """Value, gradient and record at ``z``: at the start, and after an update whose point needs a new
+    evaluation. Compiled once, apart from the update, so that the update holds only the line search's copy
+    of the gradient program (compilation dominates a short optimization)."""
+    value, grad = jax.value_and_grad(problem.value)(z)
     return value, grad, _record(problem, z, value, grad)
 
 
@@ -96,21 +94,36 @@ def _record(problem: DesignProblem, z, value, grad):
 
 
 @eqx.filter_jit
-def _step(problem: DesignProblem, optimizer, z, state, value, grad):
+def _update(problem: DesignProblem, optimizer, z, state, value, grad):
+    """The optimizer's update, applied and projected on the bounds. Returns the new point, the state and,
+    where the line search already evaluated that point, its value, gradient and record (else None)."""
     updates, state = optimizer.update(grad, state, z, value=value, grad=grad, value_fn=problem.value)
     trial = optax.apply_updates(z, updates)
     z_new = problem.space.project(trial)
     cached_value = otu.tree_get(state, "value", None)
     cached_grad = otu.tree_get(state, "grad", None)
-    if cached_value is None or cached_grad is None:  # no line search: evaluate the new point
-        value, grad = _evaluate(problem, z_new)
-    else:  # the line search evaluated the trial point; re-evaluate only if the projection moved it
-        moved = jnp.any(z_new != trial)
-        value, grad = jax.lax.cond(
-            moved, lambda: _evaluate(problem, z_new), lambda: (cached_value, cached_grad)
-        )
+    if cached_value is None or cached_grad is None:  # no line search: the new point needs an evaluation
+        return z_new, state, None
+    # the line search evaluated the trial point: valid unless the projection moved it
+    moved = jnp.any(z_new != trial)
+    return (
+        z_new,
+        state,
+        (moved, cached_value, cached_grad, _record(problem, z_new, cached_value, cached_grad)),
+    )
+
+
+def _step(problem: DesignProblem, optimizer, z, state, value, grad):
+    """One iteration: the update, then a separate evaluation only where the new point has none."""
+    z, state, cached = _update(problem, optimizer, z, state, value, grad)
+    if cached is None:
+        value, grad, record = _evaluate(problem, z)
+        return z, state, value, grad, record
+    moved, value, grad, record = cached
+    if bool(moved):
+        value, grad, record = _evaluate(problem, z)
         state = otu.tree_set(state, value=value, grad=grad)
-    return z_new, state, value, grad, _record(problem, z_new, value, grad)
+    return z, state, value, grad, record
 
 
 def _entry(iteration, z, value, record, labels, started):
@@ -210,8 +223,9 @@ def optimize(
     progress: bool = True,
 ) -> OptimizeResult:
     """Minimize ``problem`` from ``z0`` (default: the base design) with ``optimizer`` (any optax
-    transformation; default :func:`default_optimizer`). Each iteration is one jitted call: update, apply,
-    projection on the bounds, value and gradient at the new point.
+    transformation; default :func:`default_optimizer`). Each iteration is one jitted update (apply,
+    projection on the bounds), with the value and gradient at the new point taken from the line search or,
+    where it has none or the projection moved its point, from one further jitted evaluation.
 
     Stops when the relative change of the objective falls below ``rtol``, when the projected gradient's norm
     (in the coordinates ``z``) falls below ``gtol``, or after ``max_iter`` iterations (then ``converged`` is
@@ -251,7 +265,7 @@ def optimize(
         offset = entries[-1]["wall_s"] if entries else 0.0
         started -= offset
     else:
-        value, grad, record = _first(problem, z)
+        value, grad, record = _evaluate(problem, z)
         entries = [_entry(0, z, value, record, labels, started)]
         if not math.isfinite(entries[0]["objective"]):
             raise SolverError("design optimization: the objective at the initial design is not finite")

@@ -87,17 +87,37 @@ def carrier_period(p: pm.PlanetaryParams) -> float:
     return float(2.0 * np.pi / p.mesh.carrier_speed)
 
 
+class _ContactPointMatrix(eqx.Module):
+    """C(t) of :func:`contact_point_observables`, as a module: its arrays are pytree leaves, so that runs of
+    models of equal shape (a second run, a rim-thickness sweep) reuse one compiled solver, where a closure
+    would be a new static function, compiled anew, each time."""
+
+    ring: object  # the resolved elastic ring (PlanetaryParams.elastic_ring)
+    inverse: jax.Array
+    carrier_speed: jax.Array  # rad/s
+    psi: float = eqx.field(static=True)  # rad, the planet's angle
+    ring_start: int = eqx.field(static=True)
+    n_ring: int = eqx.field(static=True)
+    n_dof: int = eqx.field(static=True)
+
+    def __call__(self, t):
+        rows = ring_interpolation(self.ring, self.carrier_speed * t + self.psi, self.inverse)[:2]
+        return jnp.zeros((2, self.n_dof)).at[:, self.ring_start : self.ring_start + self.n_ring].set(rows)
+
+
 def contact_point_observables(p: pm.PlanetaryParams, planet: int = 0) -> Observables:
     """Ring displacement (inward radial, tangential; m) at the moving contact point of a planet (Fig. 3.9)."""
     lay = pm.layout(p)
-    psi = float(p.planet_angles()[planet])
     ring = p.elastic_ring  # derived and inverted once, not at every time step
-    inverse = ring_nodal_inverse(ring)
-
-    def matrix(t):
-        rows = ring_interpolation(ring, p.mesh.carrier_speed * t + psi, inverse)[:2]
-        return jnp.zeros((2, lay.n_dof)).at[:, lay.ring_start : lay.ring_start + lay.n_ring].set(rows)
-
+    matrix = _ContactPointMatrix(
+        ring,
+        ring_nodal_inverse(ring),
+        jnp.asarray(p.mesh.carrier_speed, jnp.float64),
+        float(p.planet_angles()[planet]),
+        lay.ring_start,
+        lay.n_ring,
+        lay.n_dof,
+    )
     return Observables(
         matrix, names=[f"ring_contact{planet + 1}_radial", f"ring_contact{planet + 1}_tangential"]
     )
@@ -215,7 +235,9 @@ def rim_thickness_variants(params=None, thicknesses=(0.087, 0.128, 0.168)) -> di
     out = {}
     for h in thicknesses:
         # the centre radius follows the thickness (PlanetaryParams.elastic_ring)
-        out[f"t_r = {h * 1e3:.0f} mm"] = eqx.tree_at(lambda q: q.ring.thickness, p, jnp.asarray(h))
+        out[f"t_r = {h * 1e3:.0f} mm"] = eqx.tree_at(
+            lambda q: q.ring.thickness, p, jnp.asarray(h, jnp.float64)
+        )
     return out
 
 
