@@ -75,7 +75,7 @@ def test_bounds_are_never_violated(transform):
     # a tiny cost pushes both stiffnesses up; the upper bound stops them
     lower, upper = 0.5, 5.0
     problem = chain_problem(1e-5, lower, upper, transform)
-    evaluate = eqx.filter_jit(jax.value_and_grad(problem.value))
+    evaluate = eqx.filter_jit(jax.value_and_grad(lambda z: problem.value(z)))
     for optimizer in (None, optax.adam(0.3)):
         result = pd.optimize(
             problem,
