@@ -92,17 +92,16 @@ class _ContactPointMatrix(eqx.Module):
     models of equal shape (a second run, a rim-thickness sweep) reuse one compiled solver, where a closure
     would be a new static function, compiled anew, each time."""
 
-    ring: object  # the resolved elastic ring (PlanetaryParams.elastic_ring)
+    ring: pm.RingParams  # the elastic ring with its centre radius derived (PlanetaryParams.elastic_ring)
     inverse: jax.Array
     carrier_speed: jax.Array  # rad/s
     psi: float = eqx.field(static=True)  # rad, the planet's angle
-    ring_start: int = eqx.field(static=True)
-    n_ring: int = eqx.field(static=True)
-    n_dof: int = eqx.field(static=True)
+    layout: pm.Layout  # DOF indices (static fields only)
 
     def __call__(self, t):
+        lay = self.layout
         rows = ring_interpolation(self.ring, self.carrier_speed * t + self.psi, self.inverse)[:2]
-        return jnp.zeros((2, self.n_dof)).at[:, self.ring_start : self.ring_start + self.n_ring].set(rows)
+        return jnp.zeros((2, lay.n_dof)).at[:, lay.ring_start : lay.ring_start + lay.n_ring].set(rows)
 
 
 def contact_point_observables(p: pm.PlanetaryParams, planet: int = 0) -> Observables:
@@ -114,9 +113,7 @@ def contact_point_observables(p: pm.PlanetaryParams, planet: int = 0) -> Observa
         ring_nodal_inverse(ring),
         jnp.asarray(p.mesh.carrier_speed, jnp.float64),
         float(p.planet_angles()[planet]),
-        lay.ring_start,
-        lay.n_ring,
-        lay.n_dof,
+        lay,
     )
     return Observables(
         matrix, names=[f"ring_contact{planet + 1}_radial", f"ring_contact{planet + 1}_tangential"]
