@@ -590,3 +590,43 @@ def test_nearly_constant_curve_is_drawn_flat():
     plots.readable_ylim(ax)
     assert ax.get_ylim() == before
     plt.close(fig)
+
+
+def test_y_labels_clear_the_panel_to_their_left(tmp_path):
+    """A four-column figure shaped like the rim-thickness sweep's (slow humps, a band per mesh cycle, tick
+    labels such as 197.5 in the third column): in the figure as saved, every column's y-label starts right of
+    the panel to its left. At matplotlib's default 3 pt padding the third column's label overlapped the second
+    panel by 7 px at 200 dpi."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    from pgtjax import plots
+
+    cycle, t = 0.2707, np.linspace(0.0, 27.07, 2005)
+    shape = 0.9 * np.sin(np.pi * t / 9.0) ** 2 + 0.05 + 0.05 * np.sin(2 * np.pi * t / cycle)
+
+    def curve(lo, hi, std_lo, std_hi):  # µm
+        return 1e-6 * (lo + (hi - lo) * shape), 1e-6 * (std_lo + (std_hi - std_lo) * shape)
+
+    ranges = {  # (mean from, to, std from, to) of the sweep's three variants
+        "a": [(1.49, 13.57, 0.30, 2.69), (1.74, 9.88, 0.35, 1.97), (1.69, 8.08, 0.34, 1.61)],
+        "c": [(185.81, 198.19, 15.86, 18.30), (185.42, 192.83, 15.78, 17.25), (185.14, 190.35, 15.72, 16.76)],
+        "d": [(155.56, 167.93, 9.82, 12.26), (155.17, 162.58, 9.73, 11.20), (154.89, 160.10, 9.68, 10.71)],
+    }
+    flat = (73.577e-6 + 0 * t, 14.6961e-6 + 1.1e-9 * shape)
+    curves = {f"h{k}": {"b": flat, **{n: curve(*r[k]) for n, r in ranges.items()}} for k in range(3)}
+    fig = plots.mean_std_figure(
+        t, curves, [(n, "m") for n in "abcd"], title="sweep", subtitle="b", cycle=cycle
+    )
+    gaps = []
+
+    def measure(event):  # on the draw that is saved
+        gaps.clear()
+        for row in (0, 1):
+            axes = [a for a in fig.axes if a.get_subplotspec().rowspan.start == row]
+            for left, right in zip(axes, axes[1:]):
+                label = right.yaxis.label.get_window_extent(event.renderer)
+                gaps.append(label.x0 - left.get_window_extent(event.renderer).x1)
+
+    FigureCanvasAgg(fig).mpl_connect("draw_event", measure)
+    plots.save(fig, tmp_path / "sweep.png")
+    assert len(gaps) == 6 and min(gaps) > 0.0, gaps

@@ -277,13 +277,10 @@ def moments_figure(reg: RegimeResult, title: str, subtitle: str = ""):
     std, :meth:`MonteCarloResult.standard_error`). The std axes ignore the first 5 % of the run (where the
     std grows from zero). The legend sits under the axes, outside the data."""
     import matplotlib as mpl
-    from matplotlib.figure import Figure
 
     times = np.asarray(next(iter(reg.sl.values())).times)
     with mpl.rc_context(plots.STYLE):
-        fig = Figure(
-            figsize=(2.6 * len(QUANTITIES) + 0.6, 4.9 + (0.25 if subtitle else 0.0)), layout="constrained"
-        )
+        fig = plots.panel_grid_figure((2.6 * len(QUANTITIES) + 0.6, 4.9 + (0.25 if subtitle else 0.0)))
         axes = fig.subplots(2, len(QUANTITIES), squeeze=False, sharex=True)
         for j, (name, unit) in enumerate(QUANTITIES):
             factor, shown = plots.scaled(unit)
