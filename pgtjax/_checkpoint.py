@@ -83,6 +83,13 @@ def load_checkpoint(path, description: dict, *, what: str) -> dict[str, np.ndarr
     if saved.get("format") != CHECKPOINT_FORMAT:
         raise ValueError(f"cannot resume {what}: {str(path)!r} is not a pgtjax checkpoint")
     expected = json.loads(json.dumps(dict(format=CHECKPOINT_FORMAT, **description)))
+    if set(saved) != set(expected):  # another description altogether: not worth listing value by value
+        unknown, missing = sorted(set(saved) - set(expected)), sorted(set(expected) - set(saved))
+        raise ValueError(
+            f"cannot resume {what} from {str(path)!r}: it was written by another version of pgtjax (it records "
+            f"{', '.join(unknown) or 'nothing'} that this version does not, and lacks {', '.join(missing) or 'nothing'}); "
+            "run without resume to start again"
+        )
     differ = sorted(k for k in set(saved) | set(expected) if saved.get(k) != expected.get(k))
     if differ:
         detail = "; ".join(f"{k}: checkpoint {saved.get(k)!r}, this run {expected.get(k)!r}" for k in differ)

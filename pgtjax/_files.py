@@ -194,10 +194,11 @@ def publish(
         _state["staging"] = _state["publishing"] = None
 
 
-def interrupted_message(resumable: bool = False) -> str:
+def interrupted_message(resumable: bool = False, kept=()) -> str:
     """What an interrupt leaves behind, in one line (for the CLI's Ctrl-C handler; the staging folder of a
-    run that had not started moving its files is removed). ``resumable``: the command keeps a checkpoint or
-    history written during the run."""
+    run that had not started moving its files is removed). ``resumable``: the command can continue from a
+    checkpoint or history; ``kept``: the files of that kind that this run wrote or resumed from (none if it
+    was interrupted before its first)."""
     staging, publishing = _state["staging"], _state["publishing"]
     if publishing is not None:
         return (
@@ -206,9 +207,15 @@ def interrupted_message(resumable: bool = False) -> str:
         )
     if staging is not None:
         shutil.rmtree(staging, ignore_errors=True)
+    if resumable and kept:
+        names = ", ".join(repr(str(p)) for p in kept)
+        return (
+            f"interrupted: no results written (earlier results unchanged); {names} kept: the same command "
+            "with --resume continues from it"
+        )
     if resumable:
         return (
-            "interrupted: no results written (earlier results unchanged); the checkpoint written so far is kept: "
-            "the same command with --resume continues from it"
+            "interrupted before the first checkpoint was written: no results written (earlier results "
+            "unchanged) and nothing to resume; run the same command again without --resume"
         )
     return "interrupted: no output files written (earlier outputs unchanged)"

@@ -16,6 +16,7 @@ statistics can be checkpointed and a run resumed to exactly the uninterrupted re
 
 from __future__ import annotations
 
+import zipfile
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import NamedTuple
@@ -72,10 +73,14 @@ PROPAGATIONS = ("auto", "eigen", "physical")
 _INITIAL_STATE_TAG = 0xFFFFFFFF  # fold_in tag of a sample's initial-state draw (block indices are smaller)
 
 
+def _is_typed_key(key) -> bool:
+    return isinstance(key, jax.Array) and jax.dtypes.issubdtype(key.dtype, jax.dtypes.prng_key)
+
+
 def check_key(key) -> None:
     """``ValueError`` unless ``key`` is one JAX PRNG key (``jax.random.key(seed)``, or a legacy uint32 key
     ``jax.random.PRNGKey(seed)``)."""
-    typed = isinstance(key, jax.Array) and jax.dtypes.issubdtype(key.dtype, jax.dtypes.prng_key)
+    typed = _is_typed_key(key)
     # raw uint32 key data (jax.random.PRNGKey, a NumPy copy of one): 2 words (threefry) or 4 (rbg)
     legacy = isinstance(key, jax.Array | np.ndarray) and key.dtype == np.uint32 and key.shape in ((2,), (4,))
     if typed and key.shape != ():
@@ -320,6 +325,18 @@ def _checkpoint_path(checkpoint, resume: bool, n_proc: int, proc: int) -> Path |
     return path
 
 
+def checkpoint_samples(checkpoint, *, distributed=True) -> int | None:
+    """The number of samples whose statistics the Monte Carlo checkpoint ``checkpoint`` holds (this process's
+    share in a distributed run), or None where there is no readable pgtjax checkpoint (resuming says why)."""
+    n_proc, proc = (jax.process_count(), jax.process_index()) if distributed else (1, 0)
+    try:
+        path = _checkpoint_path(checkpoint, False, n_proc, proc)
+        with np.load(path, allow_pickle=False) as data:
+            return int(data["count"]) if "__checkpoint__" in data.files else None
+    except (OSError, KeyError, ValueError, zipfile.BadZipFile, EOFError):
+        return None
+
+
 def check_options(n_samples, chunk_size, checkpoint=None, resume: bool = False, *, distributed=True):
     """The sizes and checkpoint options of :func:`monte_carlo`, checked before any computation (a study calls
     this before its other work, so that a bad option fails at once). Returns this process's checkpoint path."""
@@ -472,7 +489,13 @@ def monte_carlo(
     n_rounds = -(-n_samples // round_size)
     checkpoint_every = check_count("checkpoint_every", checkpoint_every)
     description = dict(
-        run=tree_digest(system, key, u0, v0, init_factor, observables, hist_edges, integrator),
+        # one entry per input, so that a refused resume names what differs (a changed seed shows as the key)
+        system=tree_digest(system),
+        key=np.asarray(jax.random.key_data(key) if _is_typed_key(key) else key).tolist(),
+        initial_state=tree_digest(u0, v0, init_factor),
+        observables=tree_digest(observables),
+        histogram_edges=tree_digest(hist_edges),
+        integrator=tree_digest(integrator),
         quantities=names,
         histograms=list(histograms),
         covariance_columns=list(cov_columns),

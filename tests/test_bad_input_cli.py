@@ -59,7 +59,8 @@ CASES = [
     ),
     ("samples negative", lambda d: ["gear-pair", "--samples", "-1"], "--samples"),
     ("samples one", lambda d: ["gear-pair", "--samples", "1", "--out", str(d / "o")], "`n_samples`"),
-    ("chunk size zero", lambda d: ["planetary", "--chunk-size", "0", "--out", str(d / "o")], "`chunk_size`"),
+    ("chunk size zero", lambda d: ["planetary", "--chunk-size", "0", "--out", str(d / "o")], "--chunk-size"),
+    ("gear-pair chunk size zero", lambda d: ["gear-pair", "--chunk-size", "0"], "--chunk-size"),
     ("planetary elements zero", lambda d: ["planetary-modal", "--elements", "0"], "--elements"),
     (
         "planetary elements not a multiple",

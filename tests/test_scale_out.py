@@ -167,10 +167,8 @@ def test_resume_refuses_another_run_and_bad_paths(tmp_path):
     run(chunk_size=100, checkpoint=checkpoint)
     with pytest.raises(ValueError, match="samples_per_device.*--chunk-size"):  # and how to match it
         run(chunk_size=50, checkpoint=checkpoint, resume=True)
-    with pytest.raises(
-        ValueError, match="run: checkpoint"
-    ) as err:  # another key: the run's fingerprint differs
-        run(chunk_size=100, checkpoint=checkpoint, resume=True, key=jax.random.key(18))
+    with pytest.raises(ValueError, match=r"\(key: checkpoint \[0, 17\], this run \[0, 18\]\)") as err:
+        run(chunk_size=100, checkpoint=checkpoint, resume=True, key=jax.random.key(18))  # named, nothing else
     assert "--chunk-size" not in str(err.value)  # the hint only where sizes differ
     with pytest.raises(ValueError, match="no checkpoint"):
         run(checkpoint=tmp_path / "missing.npz", resume=True)
@@ -183,6 +181,13 @@ def test_resume_refuses_another_run_and_bad_paths(tmp_path):
     (tmp_path / "foreign.npz").write_bytes(b"not a zip file")
     with pytest.raises(ValueError, match="not a readable"):
         run(checkpoint=tmp_path / "foreign.npz", resume=True)
+    from pgtjax._checkpoint import save_checkpoint
+
+    save_checkpoint(tmp_path / "old.npz", {"count": np.asarray(3.0)}, {"run": "0123", "n_samples": 203})
+    with pytest.raises(
+        ValueError, match="another version of pgtjax .it records run that this version does not"
+    ):
+        run(checkpoint=tmp_path / "old.npz", resume=True)
     np.savez(tmp_path / "other.npz", x=np.zeros(3))
     with pytest.raises(ValueError, match="not a pgtjax checkpoint"):
         run(checkpoint=tmp_path / "other.npz", resume=True)
@@ -213,7 +218,10 @@ def test_cli_resume_after_an_interruption_gives_the_same_outputs(tmp_path, monke
         main([*argv, "--out", str(out)])
     assert not (out / "summary.json").exists()
     monkeypatch.setattr(montecarlo_module, "save_checkpoint", save)
+    capsys.readouterr()
     assert main([*argv, "--out", str(out), "--resume"]) == 0
+    # two batches of 10 were checkpointed before the interrupt: the console says where it resumes
+    assert "(resuming: the checkpoint holds 20 of 60 samples)" in capsys.readouterr().out
     straight = json.loads((tmp_path / "straight" / "summary.json").read_text())
     resumed = json.loads((out / "summary.json").read_text())
     assert resumed == straight and resumed["settings"]["n_samples"] == 60
@@ -288,3 +296,38 @@ def test_default_chunk_size_is_larger_on_an_accelerator_and_gives_the_same_stati
     assert default_chunk_size([SimpleNamespace(platform="gpu")]) == 100_000
     assert default_chunk_size([*cpu, SimpleNamespace(platform="gpu")]) == 100_000
     _assert_same(arrays(run(chunk_size=None)), reference, rtol=0.0)
+
+
+def test_interrupt_message_says_whether_there_is_anything_to_resume(tmp_path):
+    """Ctrl-C in a resumable command: the message names the checkpoint this run wrote (or resumed from), and
+    says that there is nothing to resume when it had not written one yet, even if an older run's is there."""
+    import time
+
+    from pgtjax._files import interrupted_message
+    from pgtjax.cli import _resume_files, build_parser
+
+    out = tmp_path / "out"
+    out.mkdir()
+    args = build_parser().parse_args(["run", "--out", str(out)])
+    started = time.time()
+    assert _resume_files(args, started) == []
+    assert "nothing to resume" in interrupted_message(True, [])
+    checkpoint = out / "monte_carlo.checkpoint.npz"
+    checkpoint.write_bytes(b"")
+    shares = [out / f"monte_carlo.checkpoint.process-{p}-of-2.npz" for p in (0, 1)]
+    for path in shares:
+        path.write_bytes(b"")
+    assert _resume_files(args, started) == [checkpoint, *shares]
+    message = interrupted_message(True, [checkpoint])
+    assert repr(str(checkpoint)) in message and "--resume continues" in message
+    for path in (checkpoint, *shares):  # written by an earlier run
+        os.utime(path, (started - 60.0, started - 60.0))
+    assert _resume_files(args, started) == []
+    resuming = build_parser().parse_args(["run", "--out", str(out), "--resume"])
+    assert _resume_files(resuming, started) == [checkpoint, *shares]
+    optimize = build_parser().parse_args(["optimize", "--out", str(out)])
+    (out / "history.json").write_text("{}")
+    assert _resume_files(optimize, started) == [out / "history.json"]
+    assert (
+        interrupted_message(False, []) == "interrupted: no output files written (earlier outputs unchanged)"
+    )

@@ -15,6 +15,7 @@ import os
 import signal
 import sys
 import threading
+import time
 import warnings
 from pathlib import Path
 
@@ -22,6 +23,7 @@ from .._failure import SolverError
 from .._files import interrupted_message
 from .._parallel import lapack_batches_wait_on_pool, use_cpu_cores
 from . import back_to_back, design, gear_pair, planetary, ring
+from ._scale import checkpoint_path
 from ._types import positive_int
 
 __all__ = ["build_parser", "main"]
@@ -67,6 +69,22 @@ def _check_writable(out) -> None:
         ) from None
 
 
+def _resume_files(args, started: float) -> list[Path]:
+    """The files an interrupted run of a resumable command leaves for ``--resume``: its Monte Carlo checkpoints
+    (one per process in a distributed run) or its optimization history, if this run wrote them or resumed
+    from them (a checkpoint older than the run, left by an earlier one, is not this run's)."""
+    if hasattr(args, "checkpoint"):  # the Monte Carlo commands
+        base = checkpoint_path(args, Path(args.out))
+        candidates = [base, *sorted(base.parent.glob(f"{base.stem}.process-*-of-*.npz"))]
+    else:  # optimize
+        candidates = [Path(args.out) / "history.json"]
+    try:
+        # 1 s of slack: a file system may store times more coarsely than time.time() reads them
+        return [p for p in candidates if p.is_file() and (args.resume or p.stat().st_mtime >= started - 1.0)]
+    except OSError:
+        return []
+
+
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -75,11 +93,13 @@ def main(argv=None) -> int:
         return 0
     out = getattr(args, "out", None)
     resumable = getattr(args, "resume", None) is not None
+    started = time.time()
 
     def interrupted(signum, frame):
         # leave from the handler itself: a KeyboardInterrupt raised inside a callback (JAX's garbage-collection
         # hook, say) is swallowed there, and the interpreter's teardown while XLA threads run can crash
-        os.write(2, f"pgtjax: {interrupted_message(resumable)}\n".encode())
+        kept = _resume_files(args, started) if resumable else []
+        os.write(2, f"pgtjax: {interrupted_message(resumable, kept)}\n".encode())
         os._exit(130)
 
     main_thread = threading.current_thread() is threading.main_thread()  # handlers live there only

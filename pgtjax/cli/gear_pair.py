@@ -57,7 +57,7 @@ def _add_gear_pair_options(p: argparse.ArgumentParser, quick: bool) -> None:
     p.add_argument("--seed", type=seed, default=0, help="PRNG seed of the Monte Carlo (default %(default)s)")
     p.add_argument(
         "--chunk-size",
-        type=nonneg_int,
+        type=positive_int,
         default=None,
         help="MC samples per compiled batch and device; bounds memory (default 10000 on a CPU, 100000 on a GPU)",
     )

@@ -81,7 +81,7 @@ def _add_planetary_options(p: argparse.ArgumentParser, quick: bool) -> None:
     p.add_argument("--seed", type=seed, default=0, help="PRNG seed of the Monte Carlo")
     p.add_argument(
         "--chunk-size",
-        type=nonneg_int,
+        type=positive_int,
         default=None,
         help="MC samples per compiled batch and device; bounds memory (default 5000 on a CPU, 100000 on a GPU)",
     )
@@ -107,6 +107,7 @@ def _params(args):
 def _run_planetary(args) -> int:
     import jax
 
+    from .._montecarlo import checkpoint_samples
     from ..studies import planetary as study
 
     if args.resume and not args.samples:
@@ -157,7 +158,13 @@ def _run_planetary(args) -> int:
         print(f"Monte Carlo {where}{hint}")
     start = time.perf_counter()
     step = lambda msg: print(f"[{time.perf_counter() - start:7.1f} s] {msg}", flush=True)  # noqa: E731
-    step("SL + moment recursion" + (" and Monte Carlo" if args.samples else ""))
+    resuming = ""
+    if args.resume:
+        held = checkpoint_samples(study_kw["checkpoint"])  # None: no checkpoint, refused with a reason below
+        if held is not None:
+            of = f"{args.samples:,}" if jax.process_count() == 1 else "process 0's"
+            resuming = f" (resuming: the checkpoint holds {held:,} of {of} samples)"
+    step("SL + moment recursion" + (" and Monte Carlo" if args.samples else "") + resuming)
     result = study.run_study(params, progress=not args.quiet, **study_kw)
     sweeps = None
     if not args.no_sweeps:

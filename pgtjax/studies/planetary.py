@@ -478,8 +478,12 @@ def format_header(
         f"{n_steps} steps of {dt:g} s = {t_end:.2f} s ({t_end / carrier_period(params):.3f} carrier periods of "
         f"{carrier_period(params):.2f} s); mean rotor torque {mean_rotor_torque(params) / 1e3:.1f} kN m "
         f"(wind {float(params.wind.mean_wind_speed):g} m/s); SL {', '.join(criteria)}, "
-        + (f"MC {n_samples} samples saved every {mc_every} steps" if n_samples else "no MC")
+        + (f"MC {n_samples} samples saved every {_steps(mc_every)}" if n_samples else "no MC")
     )
+
+
+def _steps(n: int) -> str:
+    return "step" if n == 1 else f"{n} steps"
 
 
 def check_support_counts(params: pm.PlanetaryParams, counts) -> tuple[int, ...]:
@@ -533,8 +537,12 @@ def elastic_sensitivities(params: pm.PlanetaryParams, *, dt=0.0027, say=None) ->
     stiffness); ``say(message)`` is called before the computation."""
     if params.ring_model != "elastic":
         return None
-    (say or (lambda msg: None))("sensitivities by autodiff (checked by extrapolated central differences)")
-    return sensitivities(params, dt=dt)
+    n_steps = 200  # short: the gradient and its central-difference check cost several SL runs
+    (say or (lambda msg: None))(
+        "sensitivities by autodiff (checked by extrapolated central differences), of a separate SL run of "
+        f"{n_steps} steps from the static equilibrium"
+    )
+    return sensitivities(params, dt=dt, n_steps=n_steps)
 
 
 def format_error_summary(e: dict) -> str:
@@ -543,14 +551,15 @@ def format_error_summary(e: dict) -> str:
     quiet = ", ".join(e["roundoff_dofs_not_compared"]) or "none"
     return (
         f"SL ({e['criterion']}) vs MC ({e['n_samples']} samples), in MC standard errors (s.e.):\n"
-        f"  {e['dofs_compared']} DOFs: {100 * e['fraction_of_dof_time_points_within_3_se']:.2f} % "
+        f"  {e['dofs_compared']} DOFs (all but the wind-filter state and those zero by symmetry): "
+        f"{100 * e['fraction_of_dof_time_points_within_3_se']:.2f} % "
         f"of (DOF, time) points within 3 s.e.; largest deviation {e['max_mean_error_in_se']:.1f} "
         f"(mean), {e['max_std_error_in_se']:.1f} (std)\n"
         f"  meshing forces: {100 * f['fraction_of_mesh_time_points_within_3_se']:.2f} % within 3 s.e.; "
         f"largest deviation {f['max_mean_error_in_se']:.1f} (mean), "
         f"{f['max_std_error_in_se']:.1f} (std)\n"
         f"  max contact-loss probability {e['contact_loss_probability_max']:.3g}; "
-        f"not compared (zero by symmetry): {quiet}"
+        f"zero by symmetry (not compared): {quiet}"
     )
 
 
