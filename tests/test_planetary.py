@@ -630,3 +630,10 @@ def test_y_labels_clear_the_panel_to_their_left(tmp_path):
     FigureCanvasAgg(fig).mpl_connect("draw_event", measure)
     plots.save(fig, tmp_path / "sweep.png")
     assert len(gaps) == 6 and min(gaps) > 0.0, gaps
+
+
+def test_share_within_three_standard_errors_is_not_rounded_up_to_all():
+    from pgtjax.studies.planetary import _percent
+
+    assert _percent(1.0) == "100.00 %" and _percent(0.9965) == "99.65 %"
+    assert _percent(0.99996) == "> 99.99 %"  # 4 points in 100,000 outside: not "100.00 %"

@@ -545,6 +545,12 @@ def elastic_sensitivities(params: pm.PlanetaryParams, *, dt=0.0027, say=None) ->
     return sensitivities(params, dt=dt, n_steps=n_steps)
 
 
+def _percent(fraction: float) -> str:
+    """A fraction as a percentage with two decimals, never rounded up to 100.00 % when some points fail."""
+    text = f"{100 * fraction:.2f} %"
+    return "> 99.99 %" if fraction < 1.0 and text == "100.00 %" else text
+
+
 def format_error_summary(e: dict) -> str:
     """Plain-text summary of :func:`error_summary` (SL against MC in MC standard errors)."""
     f = e["mesh_force"]
@@ -552,10 +558,10 @@ def format_error_summary(e: dict) -> str:
     return (
         f"SL ({e['criterion']}) vs MC ({e['n_samples']} samples), in MC standard errors (s.e.):\n"
         f"  {e['dofs_compared']} DOFs (all but the wind-filter state and those zero by symmetry): "
-        f"{100 * e['fraction_of_dof_time_points_within_3_se']:.2f} % "
+        f"{_percent(e['fraction_of_dof_time_points_within_3_se'])} "
         f"of (DOF, time) points within 3 s.e.; largest deviation {e['max_mean_error_in_se']:.1f} "
         f"(mean), {e['max_std_error_in_se']:.1f} (std)\n"
-        f"  meshing forces: {100 * f['fraction_of_mesh_time_points_within_3_se']:.2f} % within 3 s.e.; "
+        f"  meshing forces: {_percent(f['fraction_of_mesh_time_points_within_3_se'])} within 3 s.e.; "
         f"largest deviation {f['max_mean_error_in_se']:.1f} (mean), "
         f"{f['max_std_error_in_se']:.1f} (std)\n"
         f"  max contact-loss probability {e['contact_loss_probability_max']:.3g}; "
