@@ -84,11 +84,12 @@ def load_checkpoint(path, description: dict, *, what: str) -> dict[str, np.ndarr
         raise ValueError(f"cannot resume {what}: {str(path)!r} is not a pgtjax checkpoint")
     expected = json.loads(json.dumps(dict(format=CHECKPOINT_FORMAT, **description)))
     if set(saved) != set(expected):  # another description altogether: not worth listing value by value
-        unknown, missing = sorted(set(saved) - set(expected)), sorted(set(expected) - set(saved))
+        unknown = ", ".join(sorted(set(saved) - set(expected))) or "nothing"
+        missing = ", ".join(sorted(set(expected) - set(saved))) or "nothing"
         raise ValueError(
-            f"cannot resume {what} from {str(path)!r}: it was written by another version of pgtjax (it records "
-            f"{', '.join(unknown) or 'nothing'} that this version does not, and lacks {', '.join(missing) or 'nothing'}); "
-            "run without resume to start again"
+            f"cannot resume {what} from {str(path)!r}: it was written by another version of pgtjax "
+            f"(it records {unknown} that this version does not, and lacks {missing}); run without resume to "
+            "start again"
         )
     differ = sorted(k for k in set(saved) | set(expected) if saved.get(k) != expected.get(k))
     if differ:

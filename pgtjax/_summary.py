@@ -56,8 +56,8 @@ _BY_LENGTH = sorted(UNIT_SUFFIXES, key=len, reverse=True)
 
 #: the rule, written into every summary so that the file explains itself
 CONVENTION = (
-    "Every number's unit is named by the suffix of its key (_s seconds, _Hz or _hz hertz, _m metres, _N newtons, "
-    "_Nm newton metres, _N_per_m N/m, _m_per_N m/N, _rad radians, _rad_per_s rad/s, _rpm, _kg, _Pa, _in_se Monte Carlo "
+    "Every number's unit is named by the suffix of its key (_s seconds, _Hz or _hz hertz, _m metres, "
+    "_N newtons, _Nm newton metres, _N_per_m N/m, _m_per_N m/N, _rad radians, _rad_per_s rad/s, _rpm, _kg, _Pa, _in_se Monte Carlo "
     "standard errors, _ratio/_fraction/_probability/_count/_dimensionless: 1), or by a 'units' object, which "
     "maps key names to units inside the object that holds it, or by the 'unit' entry of the nearest "
     "enclosing object."
