@@ -289,6 +289,9 @@ def test_other_input_errors(params, tmp_path):
         study.stft(np.zeros(100), 1e4, 1.0)
     with pytest.raises(ValueError, match="t_end"):
         study.run_regime(params, "x", t_end=-1.0)
+    # a run that ends before the ramp starts would report a second stationary run as the run-up
+    with pytest.raises(ValueError, match=r"`--t-end` \(t_end\) must exceed the run-up's start, 0.5 s"):
+        study.run_study(params, t_end=0.3, stft_window=0.05, progress=False)
 
 
 def test_float64_everywhere(stationary, params):

@@ -61,6 +61,7 @@ CASES = [
     ("samples one", lambda d: ["gear-pair", "--samples", "1", "--out", str(d / "o")], "`n_samples`"),
     ("chunk size zero", lambda d: ["planetary", "--chunk-size", "0", "--out", str(d / "o")], "--chunk-size"),
     ("gear-pair chunk size zero", lambda d: ["gear-pair", "--chunk-size", "0"], "--chunk-size"),
+    ("dt negative with an exponent", lambda d: ["gear-pair", "--dt", "-1e-5"], "--dt: must be a number > 0"),
     ("planetary elements zero", lambda d: ["planetary-modal", "--elements", "0"], "--elements"),
     (
         "planetary elements not a multiple",

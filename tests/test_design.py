@@ -134,7 +134,7 @@ def test_resume_continues_the_same_history(tmp_path):
     np.testing.assert_allclose(
         [e["objective"] for e in resumed.history], [e["objective"] for e in straight.history], rtol=1e-12
     )
-    with pytest.raises(ValueError, match="another problem"):
+    with pytest.raises(ValueError, match=r"another problem \(costs: history .*'weight': 0.01.*this run"):
         pd.optimize(chain_problem(0.02), max_iter=6, history=path, resume=True, progress=False)
 
 

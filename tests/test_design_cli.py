@@ -76,7 +76,9 @@ def test_optimize_writes_its_outputs_and_resumes(tmp_path, capsys, monkeypatch):
     assert all(not name.startswith(".") for name in (p.name for p in out.iterdir()))  # no partial files
     # resume: a higher iteration limit continues the same history
     history = json.loads((out / "history.json").read_text())["iterations"]
+    capsys.readouterr()
     assert main(args + ["--resume", "--max-iter", "5", "--no-pareto"]) == 0
+    assert f"history.json: {len(history) - 1} iterations done" in capsys.readouterr().out
     resumed = json.loads((out / "history.json").read_text())["iterations"]
     assert resumed[: len(history)] == history
     assert [e["iteration"] for e in resumed] == list(range(len(resumed)))

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import signal
 import sys
 import threading
@@ -51,7 +52,17 @@ def build_parser() -> argparse.ArgumentParser:
     ring.register(sub)
     back_to_back.register(sub)
     design.register(sub)
+    for p in (parser, *sub.choices.values()):
+        _accept_negative_exponents(p)
     return parser
+
+
+def _accept_negative_exponents(parser: argparse.ArgumentParser) -> None:
+    """Let a value such as ``-1e-5`` reach its option's check (which then names the accepted range): argparse
+    takes a token for a negative number only without an exponent, and reads ``--dt -1e-5`` as an option
+    ``-1e-5`` ("expected one argument"). The attribute is argparse's own (CPython 3.8 to 3.13)."""
+    if hasattr(parser, "_negative_number_matcher"):
+        parser._negative_number_matcher = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$")
 
 
 def _check_writable(out) -> None:

@@ -4,6 +4,7 @@ planetary parameter file) with its outputs."""
 from __future__ import annotations
 
 import argparse
+import json
 import time
 from pathlib import Path
 
@@ -49,6 +50,8 @@ def _run_optimize(args) -> int:
         f"parameters: {params_file}; design: {args.design or 'embedded design.toml'}; "
         f"horizon {spec.periods:g} carrier periods"
     )
+    if args.resume:
+        say(f"resuming from {history}: {_iterations_done(history)} iterations done")
     result = study.run_design(
         params, spec, history=history, resume=args.resume, pareto=not args.no_pareto, say=say
     )
@@ -79,6 +82,14 @@ def _run_optimize(args) -> int:
         "summary.json, figures)"
     )
     return 0
+
+
+def _iterations_done(history) -> str:
+    """The number of iterations a history holds, as text ("?" if it cannot be read: resuming says why)."""
+    try:
+        return str(max(0, len(json.loads(history.read_text())["iterations"]) - 1))  # entry 0: the start
+    except (OSError, ValueError, KeyError, TypeError):
+        return "?"
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

@@ -149,9 +149,11 @@ def register(subparsers) -> None:
         "--dts",
         type=csv_positive_floats,
         default="4e-5,2e-5,1e-5,5e-6,2.5e-6",
-        help="comma-separated steps in s",
+        help="comma-separated steps in s, the last the reference (default %(default)s)",
     )
-    step.add_argument("--t-end", type=positive_float, default=0.04, help="simulated time in s")
+    step.add_argument(
+        "--t-end", type=positive_float, default=0.04, help="simulated time in s (default %(default)s)"
+    )
     step.add_argument("--json", action="store_true", help="print JSON instead of a table")
     step.set_defaults(func=_run_step_study)
 

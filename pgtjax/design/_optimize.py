@@ -173,6 +173,12 @@ def _comparable(info: dict) -> dict:
     return {k: info.get(k) for k in ("variables", "objective", "costs", "horizon", "scales", "base")}
 
 
+def _difference(name: str, saved, this) -> str:
+    """One entry of a refused resume: the name, with both values when they are short enough to read."""
+    both = f"{name}: history {saved!r}, this run {this!r}"
+    return both if len(both) <= 200 else name
+
+
 def _load(history: Path, problem_info, state_template):
     try:
         data = json.loads(history.read_text())
@@ -181,10 +187,16 @@ def _load(history: Path, problem_info, state_template):
         raise ValueError(f"cannot resume from `history` {str(history)!r}: {err}") from None
     if data.get("format") != HISTORY_FORMAT:
         raise ValueError(f"`history` {str(history)!r} is not a pgtjax design history")
-    if _comparable(data["problem"]) != _comparable(json.loads(json.dumps(problem_info))):
+    saved_problem, this_problem = (
+        _comparable(data["problem"]),
+        _comparable(json.loads(json.dumps(problem_info))),
+    )
+    differ = [k for k in saved_problem if saved_problem[k] != this_problem[k]]
+    if differ:
+        detail = "; ".join(_difference(k, saved_problem[k], this_problem[k]) for k in differ)
         raise ValueError(
-            f"cannot resume from `history` {str(history)!r}: it was written for another problem (variables, "
-            "objective, costs or horizon differ)"
+            f"cannot resume from `history` {str(history)!r}: it was written for another problem ({detail}); "
+            "start again without resume"
         )
     leaves, treedef = jax.tree.flatten(state_template)
     try:

@@ -286,10 +286,18 @@ def run_study(
     p = bb.default_params() if params is None else params
     if t_end is None:
         t_end = float(_params.read_params(None, "back_to_back")["run_up"]["t_end_s"])
-    check_stft_window(
+    window = check_stft_window(
         stft_window, dt=dt, save_every=save_every, t_end=t_end, stationary_t_end=stationary_t_end
     )
+    ramp_start = float(p.ramp_start)
+    if t_end <= ramp_start:  # the "run-up" would be a second stationary run, reported as a run-up
+        raise ValueError(
+            f"`--t-end` (t_end) must exceed the run-up's start, {ramp_start:g} s (--ramp-start), for the speed "
+            f"and torque to ramp within the run; got {t_end:g} s (the ramp ends at {run_up_end(p):g} s)"
+        )
     say = print if progress else (lambda *a, **k: None)
+    if window < stft_window:
+        say(f"  STFT window {window:g} s: half the run-up, shorter than the {stft_window:g} s asked for")
     regimes = []
     say(
         f"  stationary regime: {float(p.speed_start) / bb.RPM:.0f} rpm, {float(p.sun_torque):g} N m, "
@@ -517,7 +525,9 @@ def format_ridges(ridges: dict) -> str:
 def format_hertz(h: dict) -> str:
     qa, qb = h["quasi_static"]["zone_A"], h["quasi_static"]["end_of_run_up"]
     lines = [
-        f"mean Hertzian stiffness (Eq. 13 secant, summed over pairs), W = {h['assumptions']['face_width_m'] * 1e3:g} mm",
+        f"mean Hertzian stiffness in N/m (Eq. 13 secant, summed over pairs), W = "
+        f"{h['assumptions']['face_width_m'] * 1e3:g} mm; A: the paper's zone A (start of the run-up), end: the "
+        "end of the run-up",
         f"{'':14s} {'model A':>10s} {'model end':>10s} {'paper A':>10s} {'paper end':>10s}",
     ]
     for key, paper in (("sun_planet", h["paper"]["sun_planet"]), ("ring_planet", h["paper"]["ring_planet"])):

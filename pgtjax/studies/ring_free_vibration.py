@@ -198,8 +198,10 @@ def chapter6_ring_params(n_elements: int = 36, rotary_inertia: bool = True) -> R
 def format_table(table: dict) -> str:
     """Plain-text Table 5.3 comparison of :func:`ring_gear_free_vibration_table` (Hz and % difference)."""
     lines = [
+        "natural frequencies (Hz) of the free ring gear by mode number n (flexural waves around the ring): "
+        "computed, Table 5.3's, and their difference",
         f"{'n':>2s} {'Model I':>9s} {'thesis I':>9s} {'diff':>7s} {'Model II':>9s} {'thesis II':>9s} "
-        f"{'diff':>7s} {'ANSYS':>7s}"
+        f"{'diff':>7s} {'ANSYS':>7s}",
     ]
     for i, n in enumerate(table["n"]):
         lines.append(
@@ -211,8 +213,8 @@ def format_table(table: dict) -> str:
 
 
 def json_table(table: dict) -> dict:
-    """:func:`ring_gear_free_vibration_table` with plain Python floats (``json.dumps``-ready lists)."""
-    return {k: [float(v) for v in vals] for k, vals in table.items()}
+    """:func:`ring_gear_free_vibration_table` as plain Python numbers (``json.dumps``-ready lists; n as integers)."""
+    return {k: [int(v) if k == "n" else float(v) for v in vals] for k, vals in table.items()}
 
 
 def write_outputs(outdir, **kw) -> list:
