@@ -93,10 +93,15 @@ def _iterations_done(history) -> str:
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
+    about = (
+        "design optimization (optax) of the planetary train: by default the stiffness of each of the "
+        "6 ring bolts against the ring's deformation at the meshes, verified by Monte Carlo"
+    )
     opt = subparsers.add_parser(
         "optimize",
-        help="design optimization (optax) of the planetary train: by default the stiffness of each of the "
-        "6 ring bolts against the ring's deformation at the meshes, verified by Monte Carlo",
+        help=about,
+        description=about + ". The defaults of --samples, --max-iter and --periods are the design file's "
+        "(the embedded one: 2000 samples per design, 50 iterations, 1 carrier period).",
     )
     add_parameter_options(opt, "planetary")
     opt.add_argument(
@@ -114,7 +119,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     opt.add_argument("--resume", action="store_true", help="continue from the history in --out")
     opt.add_argument("--no-pareto", action="store_true", help="skip the Pareto front")
-    opt.add_argument("--samples", type=positive_int, default=None, help="override the Monte Carlo samples")
-    opt.add_argument("--max-iter", type=positive_int, default=None, help="override the iteration limit")
-    opt.add_argument("--periods", type=float, default=None, help="override the horizon (carrier periods)")
+    opt.add_argument(
+        "--samples",
+        type=positive_int,
+        default=None,
+        help="Monte Carlo samples per design (default: the design file's)",
+    )
+    opt.add_argument(
+        "--max-iter", type=positive_int, default=None, help="iteration limit (default: the design file's)"
+    )
+    opt.add_argument(
+        "--periods", type=float, default=None, help="horizon in carrier periods (default: the design file's)"
+    )
     opt.set_defaults(func=_run_optimize)

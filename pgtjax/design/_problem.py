@@ -382,6 +382,10 @@ def monte_carlo_check(
         out[name] = entry
     return dict(
         designs=out,
+        note=(
+            "sl: the objective by SL on the Monte Carlo's saved times (every save_every steps), the grid its mc "
+            "estimate uses; the optimization's value, on every step, differs from it slightly"
+        ),
         n_samples=n_samples,
         batches=batches,
         save_every=save_every,

@@ -291,8 +291,10 @@ def run_design(params=None, spec=None, *, history=None, resume=False, pareto=Tru
     )
     timings["optimize_s"] = time.perf_counter() - t
     say(
-        f"optimum after {result.history[-1]['iteration']} iterations ({result.reason}): "
-        f"objective {result.history[0]['objective']:.6g} -> {result.value:.6g}"
+        f"optimum after {result.history[-1]['iteration']} iterations ({result.reason}): scalarized objective "
+        f"(the response plus the weighted costs, each over its reference scale: its value at the start when "
+        f"normalized) "
+        f"{result.history[0]['objective']:.6g} -> {result.value:.6g}"
     )
     front = []
     if pareto and spec.pareto_weights:
@@ -328,9 +330,10 @@ def run_design(params=None, spec=None, *, history=None, resume=False, pareto=Tru
     series = check.pop("series")
     timings["monte_carlo_s"] = time.perf_counter() - t
     opt = check["designs"]["optimum"]
+    unit = problem.describe()["objective"]["unit"] or "the custom objective's unit"
     say(
-        f"Monte Carlo ({v['n_samples']} samples per design): objective {check['designs']['symmetric']['mc']:.6g} "
-        f"-> {opt['mc']:.6g}, improvement {opt['improvement_in_se']:.1f} standard errors"
+        f"Monte Carlo ({v['n_samples']} samples per design): response {check['designs']['symmetric']['mc']:.6g} "
+        f"-> {opt['mc']:.6g} {unit}, improvement {opt['improvement_in_se']:.1f} standard errors"
     )
     return DesignStudy(
         problem=problem, result=result, check=check, front=front, series=series, timings=timings
@@ -362,18 +365,26 @@ def variables_figure(study: DesignStudy):
     opt = problem.space.physical(jnp.asarray(study.result.z))
     n = len(problem.space.variables)
     with plots.mpl.rc_context(plots.STYLE):
-        fig, axes = plots.plt.subplots(1, n, figsize=(4.2 * n, 3.4), squeeze=False)
+        fig, axes = plots.plt.subplots(1, n, figsize=(4.2 * n, 3.7), squeeze=False, layout="constrained")
         for ax, v, x0, x1 in zip(axes[0], problem.space.variables, start, opt):
             factor, unit = (1e-9, "GN/m") if v.unit == "N/m" else (1.0, v.unit)
             idx = np.arange(np.size(x0))
             ax.bar(idx - 0.2, factor * np.ravel(x0), 0.4, label="symmetric start")
             ax.bar(idx + 0.2, factor * np.ravel(x1), 0.4, label="optimum")
-            ax.axhline(factor * v.lower, color="0.5", ls=":", lw=1, label="lower bound")
-            ax.set(xlabel="bolt" if v.size else "", ylabel=f"{v.name} ({unit})" if unit else v.name)
-            ax.set_ylim(0.0, 1.25 * factor * max(float(np.max(x0)), float(np.max(x1))))
+            top = 1.25 * factor * max(float(np.max(x0)), float(np.max(x1)))
+            ax.axhline(factor * v.lower, color="0.5", ls=":", lw=1, label="bounds")
+            if factor * v.upper <= top:
+                ax.axhline(factor * v.upper, color="0.5", ls=":", lw=1)
+            shown = f"{factor * v.lower:.3g} to {factor * v.upper:.3g} {unit}".rstrip()
+            ax.set(
+                xlabel="bolt" if v.size else "",
+                ylabel=f"{v.name} ({unit})" if unit else v.name,
+                title=f"{v.name}: bounds {shown}",
+            )
+            ax.set_ylim(0.0, top)
             ax.set_xticks(idx)
-            ax.legend(loc="upper left", ncol=3)
-        fig.tight_layout()
+        handles, labels = axes[0, 0].get_legend_handles_labels()
+        fig.legend(handles, labels, loc="outside lower center", ncol=len(labels))
     return fig
 
 
