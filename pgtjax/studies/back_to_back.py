@@ -804,6 +804,8 @@ def _figures(reg: RegimeResult, outdir: Path, window_s: float, hertz: dict | Non
         ax[2].set_xlabel("time (s)")
         handles, labels = ax[0].get_legend_handles_labels()
         more, more_labels = ax[2].get_legend_handles_labels()
+        labels = [f"TE and force: {label}" for label in labels]  # which panels each entry belongs to
+        more_labels = [f"acceleration, {label}" for label in more_labels]
         fig.legend(handles + more, labels + more_labels, loc="outside lower center", ncol=2, frameon=False)
         for a in ax:
             a.ticklabel_format(axis="y", useOffset=False)
