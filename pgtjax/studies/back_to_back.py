@@ -483,6 +483,17 @@ def hertz_comparison(
     return out
 
 
+def _dominant(names, shape) -> str:
+    """The DOF of largest amplitude; DOFs tied with it (to 1e-6) are named together: ``planets_T`` for the
+    three planets of one set moving alike, else joined by ``/``."""
+    amplitude = np.abs(np.asarray(shape))
+    tied = [n for n, a in zip(names, amplitude) if a >= (1.0 - 1e-6) * amplitude.max()]
+    sets = {n.rsplit("_", 1)[-1] for n in tied}
+    if len(tied) > 1 and len(sets) == 1 and all(n.startswith("planet") for n in tied):
+        return f"planets_{sets.pop()}"
+    return "/".join(tied)
+
+
 def modal_table(params: bb.BackToBackParams | None = None, *, motor: bool = False) -> list[dict]:
     """Natural frequencies [Hz] and mass-normalised shapes of the bench with the meshes at their mean
     stiffness (:func:`back_to_back.linear_system`); ``motor=False``: free bench (one rigid rotation)."""
@@ -494,7 +505,7 @@ def modal_table(params: bb.BackToBackParams | None = None, *, motor: bool = Fals
             dict(
                 mode=i + 1,
                 frequency_hz=float(f),
-                dominant_dof=modes.dof_names[int(np.argmax(np.abs(shape)))],
+                dominant_dof=_dominant(modes.dof_names, shape),
                 shape=dict(zip(modes.dof_names, map(float, shape))),
             )
         )
@@ -503,7 +514,11 @@ def modal_table(params: bb.BackToBackParams | None = None, *, motor: bool = Fals
 
 def format_modal_table(rows: list[dict]) -> str:
     names = list(rows[0]["shape"])
-    lines = [f"{'mode':>4s} {'f (Hz)':>10s}  {'dominant':12s} shape ({', '.join(names)})"]
+    lines = [
+        "rotations of the reaction set (_R, free ring loaded by the arm) and the test set (_T, ring bolted); "
+        "dominant: the DOF of largest amplitude (planets_T: the three planets alike)",
+        f"{'mode':>4s} {'f (Hz)':>10s}  {'dominant':12s} shape ({', '.join(names)})",
+    ]
     for r in rows:
         lines.append(
             f"{r['mode']:4d} {r['frequency_hz']:10.2f}  {r['dominant_dof']:12s} "
