@@ -408,6 +408,13 @@ def response_figure(study: DesignStudy):
             ylabel=f"std of {quantity} ({unit})",
             title="symmetric bolts against the optimum: SL lines, Monte Carlo markers",
         )
+        n_quantities = len(getattr(study.problem.objective, "quantities", (quantity,)))
+        if n_quantities > 1:  # the objective averages several: say this is one of them
+            ax.set_title(
+                f"symmetric bolts against the optimum: SL lines, Monte Carlo markers\n{quantity}, the first of "
+                f"the objective's {n_quantities} quantities",
+                fontsize=9,
+            )
         ax.set_ylim(0.0, None)
         fig.legend(loc="outside lower center", ncol=2, frameon=False)
     return fig
