@@ -58,9 +58,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _accept_negative_exponents(parser: argparse.ArgumentParser) -> None:
-    """Let a value such as ``-1e-5`` reach its option's check (which then names the accepted range): argparse
-    takes a token for a negative number only without an exponent, and reads ``--dt -1e-5`` as an option
-    ``-1e-5`` ("expected one argument"). The attribute is argparse's own (CPython 3.8 to 3.13)."""
+    """Let a value such as ``-1e-5`` reach its option's check (which then names the accepted range): the
+    argparse of Python 3.11 takes a token for a negative number only without an exponent, and reads
+    ``--dt -1e-5`` as an option ``-1e-5`` ("expected one argument"). The attribute is argparse's own; where it
+    is missing, nothing changes."""
     if hasattr(parser, "_negative_number_matcher"):
         parser._negative_number_matcher = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$")
 
