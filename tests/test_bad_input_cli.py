@@ -176,6 +176,9 @@ def test_bad_option_exits_2_with_one_line_naming_it(case, tmp_path, capsys, monk
     assert needle in last, err
     assert "Traceback" not in err
     assert time.perf_counter() - start < 30.0  # refused before a study runs
+    # the --out write check creates the folder; a refused run must not leave it behind, empty, as if it had run
+    empty = [str(p.relative_to(tmp_path)) for p in tmp_path.rglob("*") if p.is_dir() and not any(p.iterdir())]
+    assert not empty, f"refused run left empty folders {empty}"
 
 
 def test_unknown_subcommand(capsys):

@@ -66,19 +66,33 @@ def _accept_negative_exponents(parser: argparse.ArgumentParser) -> None:
         parser._negative_number_matcher = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$")
 
 
-def _check_writable(out) -> None:
+def _check_writable(out) -> list[Path]:
     """``ValueError`` naming ``--out`` unless the folder can be created and written, checked before any
-    computation (a read-only place or a regular file would otherwise fail only after the whole study)."""
+    computation (a read-only place or a regular file would otherwise fail only after the whole study).
+    Returns the folders the check created, deepest first, for :func:`_remove_if_empty`."""
     path = Path(out)
+    created = [p for p in (path, *path.parents) if not p.exists()]
     probe = path / f".pgtjax-write-check-{os.getpid()}"
     try:
         path.mkdir(parents=True, exist_ok=True)
         probe.write_bytes(b"")
         probe.unlink()
     except OSError as err:
+        _remove_if_empty(created)
         raise ValueError(
             f"`--out` {str(path)!r} cannot be created or written: {err.strerror or err}"
         ) from None
+    return created
+
+
+def _remove_if_empty(folders) -> None:
+    """Remove the folders the write check created (deepest first) where a failed command left them empty: bad
+    input found by the study itself then leaves no output folder behind that looks like a run's."""
+    for folder in folders:
+        try:
+            folder.rmdir()
+        except OSError:  # not empty (a checkpoint, another process's file) or already gone: keep it
+            return
 
 
 def _resume_files(args, started: float) -> list[Path]:
@@ -114,6 +128,7 @@ def main(argv=None) -> int:
         os.write(2, f"pgtjax: {interrupted_message(resumable, kept)}\n".encode())
         os._exit(130)
 
+    created: list[Path] = []  # folders made by the write check, removed again if the command fails empty
     main_thread = threading.current_thread() is threading.main_thread()  # handlers live there only
     previous = signal.signal(signal.SIGINT, interrupted) if main_thread else None
     try:
@@ -126,15 +141,21 @@ def main(argv=None) -> int:
         elif not lapack_batches_wait_on_pool():  # every core, on a jaxlib that cannot hang so
             use_cpu_cores()
         if out is not None:
-            _check_writable(out)
-        return args.func(args)
+            created = _check_writable(out)
+        status = args.func(args)
+        if status:
+            _remove_if_empty(created)
+        return status
     except (ValueError, argparse.ArgumentTypeError) as err:  # bad input: a clear message, no traceback
+        _remove_if_empty(created)
         print(f"pgtjax: error: {err}", file=sys.stderr)
         return 2
     except SolverError as err:  # a numerical failure, with when and where
+        _remove_if_empty(created)
         print(f"pgtjax: numerical failure: {err}", file=sys.stderr)
         return 1
     except OSError as err:  # a file that could not be read or written: one line
+        _remove_if_empty(created)
         print(f"pgtjax: error: {err}", file=sys.stderr)
         return 1
     finally:
