@@ -23,7 +23,7 @@ import matplotlib as mpl
 import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.figure import Figure
-from matplotlib.patches import Patch
+from matplotlib.patches import Patch, Polygon
 
 STYLE = {
     "font.size": 9,
@@ -135,6 +135,18 @@ def transient_free_ylim(ax, curves: list, skip: float = 0.03, zero_floor: bool =
         return
     pad = 0.08 * (hi - lo)
     ax.set_ylim(lo - pad, hi + pad)
+
+
+def closed_curve(ax, xs, ys, **line) -> None:
+    """Draw the closed curve through ``(xs, ys)`` (the last point repeating the first) as one closed path, so
+    that it joins where it closes; as a plotted line its two end caps leave a small kink there."""
+    points = np.column_stack([xs, ys])
+    if np.allclose(points[0], points[-1], rtol=0.0, atol=1e-12 * np.max(np.abs(points))):
+        points = points[:-1]
+    line.setdefault("linewidth", mpl.rcParams["lines.linewidth"])  # as a plotted line would be
+    ax.add_patch(Polygon(points, closed=True, fill=False, **line))
+    ax.update_datalim(points)
+    ax.autoscale_view()
 
 
 def panel_grid_figure(figsize) -> Figure:

@@ -439,3 +439,33 @@ def test_table_5_study_spacing_and_model_order():
     f_cl = np.sqrt(E * h**2 / 12 * n**2 * (n**2 - 1) ** 2 / (RHO * R**4 * (n**2 + 1))) / (2 * np.pi)
     np.testing.assert_allclose(t["model_I"], f_cl, rtol=4e-2)
     assert np.all(t["model_I"] < f_cl)
+
+
+def test_mode_shape_curves_are_drawn_closed():
+    """The deformed ring is one closed path (drawn as a line, its two end caps left a kink at 0 degrees), and it
+    passes through the points of ``ring_shape_points``."""
+    from matplotlib.patches import Polygon
+    from matplotlib.path import Path as MplPath
+
+    from pgtjax import plots
+    from pgtjax.models.ring import natural_frequencies
+    from pgtjax.studies import ring_moving_load as rml
+
+    ring = rml.load_params().ring
+    fig = rml.mode_shape_figure(ring, n_modes=2)
+    try:
+        curves = [p for ax in fig.axes for p in ax.patches if isinstance(p, Polygon)]
+        assert len(curves) == 2
+        for patch in curves:
+            path = patch.get_path()
+            assert path.codes is not None and path.codes[-1] == MplPath.CLOSEPOLY
+            assert not np.allclose(path.vertices[0], path.vertices[-2])  # the closing point is not doubled
+        x_modes = np.asarray(natural_frequencies(*ring_matrices(ring))[1])
+        u = x_modes[:, 0]
+        scale = 0.15 * float(ring.radius) / np.max(np.abs(u.reshape(-1, 3)[:, :2]))
+        xs, ys = rml.ring_shape_points(ring, u, scale)
+        np.testing.assert_allclose(
+            curves[0].get_xy()[:-1], np.column_stack([xs, ys])[:-1], rtol=0, atol=1e-15
+        )
+    finally:
+        plots.plt.close(fig)

@@ -261,7 +261,7 @@ def _elastic_mode_figure(p: RingParams, title: str, n_show: int = 6, amplitude: 
             xs, ys = ring_shape_points(p, jnp.asarray(u), amplitude * R / max(peak, 1e-300))
             th = np.linspace(0, 2 * math.pi, 200)
             ax.plot(R * np.cos(th), R * np.sin(th), color="0.6", ls="--", lw=0.8)
-            ax.plot(xs, ys, color="tab:blue")
+            plots.closed_curve(ax, xs, ys, edgecolor="tab:blue")
             ax.set_aspect("equal")
             ax.axis("off")
             ax.set_title(f"{f[k]:.0f} Hz, n = {nodal_diameter(u)}")

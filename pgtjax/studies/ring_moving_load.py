@@ -640,7 +640,7 @@ def mode_shape_figure(ring: RingParams, n_modes: int = 6, title: str = "", ampli
             xs, ys = ring_shape_points(ring, u, amplitude * R / max(peak, 1e-300))
             th = np.linspace(0, 2 * math.pi, 200)
             ax.plot(R * np.cos(th), R * np.sin(th), color="0.6", ls="--", lw=0.8)
-            ax.plot(xs, ys, color="tab:blue")
+            plots.closed_curve(ax, xs, ys, edgecolor="tab:blue")
             for s in ring.support_nodes:
                 a = 2 * math.pi * s / ring.n_elements
                 ax.plot(R * math.cos(a), R * math.sin(a), "ks", ms=3)
