@@ -240,3 +240,36 @@ def test_free_vibration_cli_writes_readme_and_says_why_table_5_3_disagrees(tmp_p
     assert args.func(args) == 0
     assert fv.DISAGREEMENT_NOTE in capsys.readouterr().out
     assert_readme_lists_every_file(tmp_path)
+
+
+def test_sweep_figure_marks_every_critical_speed_the_console_lists():
+    """Each mesh-family critical speed above the figure's cut is visible: a shaded band, or a line where the
+    group's natural frequencies coincide (the second group's bands, 1e-5 rad/s wide, were drawn invisibly)."""
+    import matplotlib.colors as mcolors
+
+    from pgtjax import plots
+    from pgtjax.studies import ring_moving_load as study
+
+    critical = study.critical_speed_table(study.load_params())
+    speeds = np.linspace(2.8, 50.0, 20)
+    sweep = dict(speeds=speeds, xi_m=np.ones_like(speeds), xi_sd=np.ones_like(speeds), peaks=[])
+    fig = study.sweep_figure(sweep, critical, min_band_speed=15.0)
+    try:
+        ax = fig.axes[0]
+        marks = []  # (x from, x to, drawn width in points) of each band or line
+        for patch in ax.patches:
+            x0, x1 = patch.get_x(), patch.get_x() + patch.get_width()
+            marks.append((x0, x1, np.diff(ax.transData.transform([(x0, 0), (x1, 0)])[:, 0])[0]))
+        for line in ax.lines:
+            x = np.asarray(line.get_xdata(), dtype=float)
+            if x.size == 2 and x[0] == x[1] and mcolors.to_hex(line.get_color()) != mcolors.to_hex("tab:red"):
+                marks.append((x[0], x[0], line.get_linewidth()))
+        wanted = [r for r in critical["mesh_family"] if r["speed_high"] >= 15.0]
+        assert {r["group"] for r in wanted} == {1, 2}
+        for r in wanted:
+            hits = [
+                m for m in marks if m[0] - 1e-9 <= 0.5 * (r["speed_low"] + r["speed_high"]) <= m[1] + 1e-9
+            ]
+            assert hits and max(h[2] for h in hits) >= 1.0, (r, hits)  # at least a point wide: visible
+    finally:
+        plots.plt.close(fig)

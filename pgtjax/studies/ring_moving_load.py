@@ -555,12 +555,40 @@ def response_figure(curves: dict, which: str, title: str = "", angle_axis=True, 
     return fig
 
 
+_GROUP_COLOURS = ("tab:orange", "tab:green", "tab:purple")
+
+
+def _draw_bands(ax, critical: dict, min_band_speed: float, legend: bool) -> None:
+    """The mesh-family critical speeds ``omega_k / (36 q)`` above ``min_band_speed``, one colour per group of
+    natural frequencies: a shaded band, or a line where the group's frequencies (nearly) coincide and the band
+    would be too narrow to see."""
+    span = max(r["speed_high"] for r in critical["mesh_family"]) - min_band_speed
+    for group, (w_low, w_high) in enumerate(critical["groups_rad_s"], start=1):
+        colour = _GROUP_COLOURS[(group - 1) % len(_GROUP_COLOURS)]
+        bands = [
+            r for r in critical["mesh_family"] if r["group"] == group and r["speed_high"] >= min_band_speed
+        ]
+        label = (
+            f"ω_k / (36 q), ω_k = {w_low:.0f}-{w_high:.0f} rad/s (≥ {min_band_speed:g} rad/s)"
+            if w_high - w_low >= 0.5
+            else f"ω_k / (36 q), ω_k = {w_low:.0f} rad/s (≥ {min_band_speed:g} rad/s)"
+        )
+        for i, r in enumerate(bands):
+            name = label if i == 0 and legend else None
+            if r["speed_high"] - r["speed_low"] < 2e-3 * span:
+                ax.axvline(
+                    0.5 * (r["speed_low"] + r["speed_high"]), color=colour, alpha=0.6, lw=1.5, label=name
+                )
+            else:
+                ax.axvspan(r["speed_low"], r["speed_high"], color=colour, alpha=0.3, lw=0, label=name)
+
+
 def sweep_figure(
     sw: dict, critical: dict | None = None, thesis=THESIS_CRITICAL_SPEEDS, min_band_speed: float = 15.0
 ):
-    """Fig. 6.7: xi_m and xi_sd against omega_c, with the predicted mesh-family critical speeds (bands, those
-    above ``min_band_speed`` rad/s: below it they crowd into a solid block) and the thesis's critical
-    speeds (dotted). The subtitle says how far the thesis's values lie from the predicted bands."""
+    """Fig. 6.7: xi_m and xi_sd against omega_c, with the predicted mesh-family critical speeds of each group
+    of natural frequencies (:func:`_draw_bands`; those above ``min_band_speed`` rad/s: below it they crowd
+    into a solid block) and the thesis's critical speeds (dotted). The subtitle says how far the thesis's values lie from the predicted bands."""
     subtitle = ""
     if critical and critical.get("thesis_comparison"):
         far = [r for r in critical["thesis_comparison"] if r["distance"] > 0.0]
@@ -579,18 +607,7 @@ def sweep_figure(
         a1.plot(sw["speeds"], sw["xi_sd"], "b.-", ms=3, label="ξ_sd (max std)", zorder=3)
         for ax in (a0, a1):
             if critical:
-                bands = [r for r in critical["mesh_family"] if r["speed_high"] >= min_band_speed]
-                for i, r in enumerate(bands):
-                    ax.axvspan(
-                        r["speed_low"],
-                        r["speed_high"],
-                        color="tab:orange",
-                        alpha=0.3,
-                        lw=0,
-                        label=f"ω_k / (36 q) of this ring (≥ {min_band_speed:g} rad/s)"
-                        if i == 0 and ax is a0
-                        else None,
-                    )
+                _draw_bands(ax, critical, min_band_speed, legend=ax is a0)
             for i, ts in enumerate(thesis):
                 ax.axvline(
                     ts,
