@@ -265,9 +265,11 @@ def pgtjax_normals(key, n_samples, n_steps, save_every):
     (n_steps, n_samples): sample ``s``, saved block ``j``: ``normal(fold_in(fold_in(key, s), j), (save_every, 1))``."""
     import jax
 
+    from pgtjax._random import normal
+
     def sample(s):
         k = jax.random.fold_in(key, s)
-        blocks = jax.vmap(lambda j: jax.random.normal(jax.random.fold_in(k, j), (save_every, 1)))(
+        blocks = jax.vmap(lambda j: normal(jax.random.fold_in(k, j), (save_every, 1)))(
             np.arange(n_steps // save_every)
         )
         return blocks.reshape(n_steps)

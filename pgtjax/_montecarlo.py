@@ -40,6 +40,8 @@ from ._newmark import (
     snapshot,
 )
 from ._parallel import default_chunk_size, device_mesh, local_devices
+from ._random import block_normals
+from ._random import normal as standard_normal
 from ._results import MonteCarloResult
 from ._system import (
     Observables,
@@ -162,7 +164,7 @@ def _sample_statistics(
     x0 = jnp.broadcast_to(jnp.concatenate([u0, v0]), (n_batch, 2 * n))
     if init_factor.shape[1]:  # random initial state: mean + F z, F F^T = initial covariance
         z = jax.vmap(
-            lambda k: jax.random.normal(jax.random.fold_in(k, _INITIAL_STATE_TAG), (init_factor.shape[1],))
+            lambda k: standard_normal(jax.random.fold_in(k, _INITIAL_STATE_TAG), (init_factor.shape[1],))
         )(sample_keys)
         x0 = x0 + z @ init_factor.T
     state = initial_sample_state(system, s0, x0[:, :n], x0[:, n:])
@@ -220,13 +222,9 @@ def _sample_statistics(
 
     def block_draws(block_index):
         # One RNG call per sample and saved block (not per step): the draws of sample s in block j are
-        # normal(fold_in(fold_in(key, s), j)), independent of how samples are chunked.
-        if not nd:
-            return jnp.zeros((save_every, n_batch, 0))
-        draws = jax.vmap(lambda k: jax.random.normal(jax.random.fold_in(k, block_index), (save_every, nd)))(
-            sample_keys
-        )
-        return jnp.swapaxes(draws, 0, 1)  # (save_every, batch, nd)
+        # normal(fold_in(fold_in(key, s), j), (save_every, nd)), independent of how samples are chunked.
+        keys = jax.vmap(lambda k: jax.random.key_data(jax.random.fold_in(k, block_index)))(sample_keys)
+        return block_normals(keys, save_every, nd)  # (save_every, batch, nd)
 
     def advance(c, step_number, step_draws):
         state, snap0, bad = c

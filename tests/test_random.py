@@ -1,0 +1,86 @@
+"""Monte Carlo's normals (``pgtjax._random``): JAX's threefry bits and uniforms bit for bit, an erfinv and a
+logarithm checked against SciPy and NumPy, and blocks equal to ``jax.random.normal`` to rounding."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy import special
+
+from pgtjax import _random
+
+
+def _keys(n, seed=3):
+    return jax.vmap(lambda i: jax.random.key_data(jax.random.fold_in(jax.random.key(seed), i)))(jnp.arange(n))
+
+
+def test_uniforms_are_jax_uniforms_bit_for_bit():
+    key = jax.random.fold_in(jax.random.key(11), 5)
+    words = jax.random.key_data(key)
+    counter = jax.lax.iota(jnp.uint32, 21).reshape(7, 3)
+    ours = np.asarray(_random._uniform(words[0], words[1], counter))
+    theirs = np.asarray(
+        jax.random.uniform(key, (7, 3), jnp.float64, minval=np.nextafter(-1.0, 0.0), maxval=1.0)
+    )
+    assert ours.dtype == np.float64
+    np.testing.assert_array_equal(ours, theirs)
+
+
+def test_logarithm_within_two_ulp_of_numpy():
+    rng = np.random.default_rng(0)
+    y = np.concatenate(
+        [
+            rng.uniform(0.0, 1.0, 50_000),
+            2.0 ** rng.uniform(-60.0, 0.0, 50_000),
+            [2.0**-53, 0.5, np.sqrt(0.5), 1.0],
+        ]
+    )
+    ours = np.asarray(jax.jit(_random._log)(y))
+    exact = np.log(y)
+    ulp = np.abs(ours - exact) / np.spacing(np.maximum(np.abs(exact), np.finfo(float).tiny))
+    assert ours.dtype == np.float64 and np.max(ulp[exact != 0.0]) <= 2.0
+    assert ours[-1] == 0.0
+
+
+def test_erfinv_matches_scipy_near_zero_and_near_one():
+    rng = np.random.default_rng(1)
+    near_one = 1.0 - 2.0 ** -np.arange(1.0, 53.0)  # where -log1p(-x^2) loses digits
+    x = np.concatenate([rng.uniform(-1.0, 1.0, 20_000), near_one, -near_one, [1e-300, -1e-12, 0.0]])
+    ours = np.asarray(jax.jit(_random.erfinv)(x))
+    exact = special.erfinv(x)
+    scale = np.maximum(np.abs(exact), 1e-300)
+    assert np.max(np.abs(ours - exact) / scale) < 2e-15
+    assert ours[-1] == 0.0
+
+
+@pytest.mark.parametrize("width", [1, 2, 3])
+def test_block_normals_are_each_keys_normals(width):
+    keys = _keys(5)
+    block = np.asarray(_random.block_normals(keys, 7, width))
+    assert block.shape == (7, 5, width) and block.dtype == np.float64
+    per_key = np.stack(
+        [np.asarray(_random.normal(jax.random.wrap_key_data(k), (7, width))) for k in keys], axis=1
+    )
+    np.testing.assert_array_equal(block, per_key)
+    theirs = np.stack(
+        [np.asarray(jax.random.normal(jax.random.wrap_key_data(k), (7, width))) for k in keys], axis=1
+    )
+    np.testing.assert_allclose(block, theirs, rtol=0.0, atol=1e-14)
+    assert np.mean(block == theirs) > 0.3  # most are the same double: only the last bits may differ
+
+
+def test_a_million_normals_have_the_normal_moments():
+    """Sample moments within 5 standard errors of N(0, 1)'s (a gross check; exactness is the tests above)."""
+    z = np.asarray(_random.block_normals(_keys(1000), 500, 2)).ravel()
+    n = z.size
+    assert abs(z.mean()) < 5.0 / np.sqrt(n)
+    assert abs(z.var() - 1.0) < 5.0 * np.sqrt(2.0 / n)
+    assert abs(np.mean(z**4) - 3.0) < 5.0 * np.sqrt(96.0 / n)
+    assert abs(np.mean(np.abs(z) > 3.0) - 2.0 * special.ndtr(-3.0)) < 5.0 * np.sqrt(0.0027 / n)
+
+
+def test_normal_refuses_more_values_than_counters():
+    with pytest.raises(ValueError, match="shape"):
+        _random.normal(jax.random.key(0), (2**16, 2**16))
