@@ -47,19 +47,23 @@ def timed(fn, *args, repeats: int = 3, **kwargs):
     return first, statistics.median(times), times, out
 
 
-def timed_interleaved(fns: dict, *args, repeats: int = 3) -> dict:
+def timed_interleaved(fns: dict, *args, repeats: int = 3, serpentine: bool = False) -> dict:
     """Like :func:`timed` for several functions of the same arguments, their timed calls alternating
-    (f, g, f, g, ...) so that a ratio between them sees the same machine load. Returns, per name,
-    ``dict(first_call_s, median_s, runs_s)``."""
+    (f, g, f, g, ...) so that a ratio between them sees the same machine load. With ``serpentine`` every other
+    round runs them in reverse order (f, g, h, h, g, f, f, ...), so that no function always follows the same
+    one: a run can slow the next one of the process (the gear pair's peers slowed pgtjax's next run by 10-20 %,
+    2026-11-26), and the median then drops that round. Returns, per name, ``dict(first_call_s, median_s,
+    runs_s)``."""
     out = {}
     for name, fn in fns.items():
         t = time.perf_counter()
         jax.block_until_ready(fn(*args))
         out[name] = dict(first_call_s=time.perf_counter() - t, runs_s=[])
-    for _ in range(repeats):
-        for name, fn in fns.items():
+    for round_index in range(repeats):
+        names = list(fns)
+        for name in reversed(names) if serpentine and round_index % 2 else names:
             t = time.perf_counter()
-            jax.block_until_ready(fn(*args))
+            jax.block_until_ready(fns[name](*args))
             out[name]["runs_s"].append(time.perf_counter() - t)
     for row in out.values():
         row["median_s"] = statistics.median(row["runs_s"])

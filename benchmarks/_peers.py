@@ -324,7 +324,7 @@ def time_gear_pair(system, *, h, n_samples, n_steps, save_every, rounds, seed=0,
     scheme = gear_pair_scheme(system, h, n_steps)
     devices = jax.local_devices()
 
-    def pgtjax_run(devs):
+    def pgtjax_run(devs, chunk_size=None):
         def run():
             r = pg.monte_carlo(
                 system,
@@ -333,7 +333,7 @@ def time_gear_pair(system, *, h, n_samples, n_steps, save_every, rounds, seed=0,
                 dt=h,
                 n_steps=n_steps,
                 save_every=save_every,
-                chunk_size=-(-n_samples // len(devs)),
+                chunk_size=chunk_size,  # None: the default batch (5,000 samples per CPU device)
                 devices=devs,
                 progress=False,
             )
@@ -342,6 +342,11 @@ def time_gear_pair(system, *, h, n_samples, n_steps, save_every, rounds, seed=0,
         return run
 
     runs = {f"pgtjax, {len(devices)} {devices[0].platform} device(s)": pgtjax_run(devices)}
+    # the whole run in one batch per device: larger batches leave the caches (docs/performance.md)
+    one_batch = -(-n_samples // len(devices))
+    runs[f"pgtjax, {len(devices)} {devices[0].platform} device(s), one batch of {one_batch} each"] = (
+        pgtjax_run(devices, one_batch)
+    )
     if len(devices) > 1:
         runs[f"pgtjax, 1 {devices[0].platform} device"] = pgtjax_run(devices[:1])
     runs["NumPy vectorized over samples (Generator)"] = lambda: numpy_monte_carlo(
@@ -374,7 +379,14 @@ def time_gear_pair(system, *, h, n_samples, n_steps, save_every, rounds, seed=0,
         )
     from _common import timed_interleaved
 
-    rows = timed_interleaved(runs, repeats=rounds)
+    # diffrax's runs after the others': timed among them, they slowed every later pgtjax run of the process by
+    # a quarter, with or without garbage collection and a pause (2026-11-26); their ratios to the rest are of
+    # 30-60, which this does not blur
+    late = [name for name in runs if name.startswith("diffrax")]
+    rows = timed_interleaved(
+        {k: f for k, f in runs.items() if k not in late}, repeats=rounds, serpentine=True
+    )
+    rows.update(timed_interleaved({k: runs[k] for k in late}, repeats=rounds))
     for name, row in rows.items():
         row["n_samples"] = samples[name]
         row["ns_per_sample_step"] = row["median_s"] / (samples[name] * n_steps) * 1e9

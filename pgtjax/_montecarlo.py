@@ -40,6 +40,7 @@ from ._newmark import (
     snapshot,
 )
 from ._parallel import default_chunk_size, device_mesh, local_devices
+from ._random import STREAM as NORMALS_STREAM
 from ._random import block_normals
 from ._random import normal as standard_normal
 from ._results import MonteCarloResult
@@ -494,6 +495,7 @@ def monte_carlo(
         observables=tree_digest(observables),
         histogram_edges=tree_digest(hist_edges),
         integrator=tree_digest(integrator),
+        normals=NORMALS_STREAM,
         quantities=names,
         histograms=list(histograms),
         covariance_columns=list(cov_columns),

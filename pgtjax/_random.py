@@ -24,6 +24,10 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
+#: names this stream in Monte Carlo checkpoints: one drawn with ``jax.random.normal`` (before this module) differs
+#: in the last bits, and a run resumed across the change would not equal an uninterrupted one exactly
+STREAM = "threefry2x32 bits, erfinv via log((1 - |x|)(1 + |x|))"
+
 _ROTATIONS = ((13, 15, 26, 6), (17, 29, 16, 24))
 _KEY_PARITY = np.uint32(0x1BD11BDA)
 

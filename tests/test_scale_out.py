@@ -3,6 +3,7 @@ four (forced) CPU devices, split over two ``jax.distributed`` processes, or kill
 resumed, against the same run on one device in one go. Each case runs in fresh processes (tests/_mc_worker.py):
 the device count is fixed when JAX starts, and a killed process must really die."""
 
+import json
 import os
 import socket
 import subprocess
@@ -188,6 +189,17 @@ def test_resume_refuses_another_run_and_bad_paths(tmp_path):
         ValueError, match="another version of pgtjax .it records run that this version does not"
     ):
         run(checkpoint=tmp_path / "old.npz", resume=True)
+    # one written before Monte Carlo drew its normals with pgtjax._random (they differ in the last bits)
+    with np.load(checkpoint) as data:
+        arrays = {k: data[k] for k in data.files}
+    meta = json.loads(str(arrays.pop("__checkpoint__")))
+    del meta["normals"], meta["format"]
+    save_checkpoint(tmp_path / "before_normals.npz", arrays, meta)
+    with pytest.raises(
+        ValueError,
+        match="another version of pgtjax .it records nothing that this version does not, and lacks normals",
+    ):
+        run(chunk_size=100, checkpoint=tmp_path / "before_normals.npz", resume=True, key=jax.random.key(17))
     np.savez(tmp_path / "other.npz", x=np.zeros(3))
     with pytest.raises(ValueError, match="not a pgtjax checkpoint"):
         run(checkpoint=tmp_path / "other.npz", resume=True)
