@@ -40,9 +40,9 @@ from ._newmark import (
     snapshot,
 )
 from ._parallel import default_chunk_size, device_mesh, local_devices
-from ._random import STREAM as NORMALS_STREAM
 from ._random import block_normals
 from ._random import normal as standard_normal
+from ._random import stream as normals_stream
 from ._results import MonteCarloResult
 from ._system import (
     Observables,
@@ -224,7 +224,9 @@ def _sample_statistics(
     def block_draws(block_index):
         # One RNG call per sample and saved block (not per step): the draws of sample s in block j are
         # normal(fold_in(fold_in(key, s), j), (save_every, nd)), independent of how samples are chunked.
-        keys = jax.vmap(lambda k: jax.random.key_data(jax.random.fold_in(k, block_index)))(sample_keys)
+        if not nd:
+            return jnp.zeros((save_every, n_batch, 0))
+        keys = jax.vmap(lambda k: jax.random.fold_in(k, block_index))(sample_keys)
         return block_normals(keys, save_every, nd)  # (save_every, batch, nd)
 
     def advance(c, step_number, step_draws):
@@ -495,7 +497,7 @@ def monte_carlo(
         observables=tree_digest(observables),
         histogram_edges=tree_digest(hist_edges),
         integrator=tree_digest(integrator),
-        normals=NORMALS_STREAM,
+        normals=normals_stream(key),
         quantities=names,
         histograms=list(histograms),
         covariance_columns=list(cov_columns),

@@ -14,7 +14,8 @@ both for speed on a CPU, where XLA's versions cost most of a gear-pair sample-st
   (:func:`_log`) instead of XLA's ``-log1p(-x^2)``. Besides being cheaper, the product is exact where
   ``x^2`` rounds: near |x| = 1 XLA's erfinv is off by up to 1e-10 relative, this one by 5e-16.
 
-A batch's block of normals is drawn in one flat loop over (step, sample, column) (:func:`block_normals`).
+A batch's block of normals is drawn in one elementwise loop (:func:`block_normals`). Keys of another JAX
+generator (``rbg``) draw with ``jax.random.normal``, as Monte Carlo did before this module.
 """
 
 from __future__ import annotations
@@ -122,33 +123,48 @@ def erfinv(x):
     return p * x
 
 
-def key_data(key) -> jax.Array:
-    """The (..., 2) uint32 words of a typed or raw threefry key (array)."""
-    if jnp.issubdtype(key.dtype, jax.dtypes.prng_key):
-        return jax.random.key_data(key)
-    return key
+def is_threefry(keys) -> bool:
+    """Whether ``keys`` (typed, or raw key data read with JAX's default implementation) are threefry-2x32
+    keys, the only ones this module's stream is written for (others draw with ``jax.random.normal``)."""
+    if jnp.issubdtype(keys.dtype, jax.dtypes.prng_key):
+        return str(jax.random.key_impl(keys)) == "threefry2x32"
+    return keys.shape[-1] == 2 and str(jax.config.jax_default_prng_impl) == "threefry2x32"
+
+
+def stream(key) -> str:
+    """The name of the normals ``key`` draws (:data:`STREAM` for threefry keys), for checkpoints."""
+    return STREAM if is_threefry(key) else "jax.random.normal"
+
+
+def _typed(keys):
+    return keys if jnp.issubdtype(keys.dtype, jax.dtypes.prng_key) else jax.random.wrap_key_data(keys)
 
 
 def normal(key, shape: tuple[int, ...]) -> jax.Array:
-    """Standard normals of ``shape`` (float64) for one threefry ``key``: ``jax.random.normal(key, shape)`` to
-    rounding (module docstring)."""
+    """Standard normals of ``shape`` (float64) for one ``key``: ``jax.random.normal(key, shape)`` to
+    rounding for a threefry key (module docstring), exactly for another."""
+    if not is_threefry(key):
+        return jax.random.normal(_typed(key), shape, jnp.float64)
     size = int(np.prod(shape, dtype=np.int64))
     if size >= 2**32:
         raise ValueError(f"`shape` {shape} holds {size} values; at most 2**32 - 1 are drawn from one key")
     counter = lax.iota(jnp.uint32, size).reshape(shape)
-    words = key_data(key)
+    words = jax.random.key_data(key)
     return np.sqrt(2.0) * erfinv(_uniform(words[0], words[1], counter))
 
 
 def block_normals(keys, rows: int, width: int) -> jax.Array:
-    """``normal(key, (rows, width))`` for each of ``keys`` (batch, 2) uint32 key data, laid out
-    (rows, batch, width) for a scan over the rows. They are drawn as (rows, width, batch), the samples
-    innermost, and transposed: drawn per key, or with the counters flattened over (sample, column), XLA:CPU
-    did not vectorize the loop for some widths and a normal cost 2-3 times as much (docs/performance.md)."""
+    """``normal(key, (rows, width))`` for each of a batch of ``keys``, laid out (rows, batch, width) for a
+    scan over the rows. They are drawn as (rows, width, batch), the samples innermost, and transposed: drawn
+    per key, or with the counters flattened over (sample, column), XLA:CPU did not vectorize the loop for some
+    widths and a normal cost 2-3 times as much (docs/performance.md)."""
+    if not is_threefry(keys):
+        return jnp.swapaxes(jax.vmap(lambda k: normal(k, (rows, width)))(keys), 0, 1)
+    words = jax.random.key_data(keys)  # (batch, 2)
     counter = (
         lax.iota(jnp.uint32, rows)[:, None, None] * np.uint32(width)
         + lax.iota(jnp.uint32, width)[None, :, None]
     )
     counter = jnp.broadcast_to(counter, (rows, width, keys.shape[0]))
-    normals = np.sqrt(2.0) * erfinv(_uniform(keys[None, None, :, 0], keys[None, None, :, 1], counter))
+    normals = np.sqrt(2.0) * erfinv(_uniform(words[None, None, :, 0], words[None, None, :, 1], counter))
     return jnp.transpose(normals, (0, 2, 1))
