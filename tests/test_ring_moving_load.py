@@ -273,3 +273,24 @@ def test_sweep_figure_marks_every_critical_speed_the_console_lists():
             assert hits and max(h[2] for h in hits) >= 1.0, (r, hits)  # at least a point wide: visible
     finally:
         plots.plt.close(fig)
+
+
+def test_bolted_ring_modes_carry_only_the_harmonics_the_modal_table_names():
+    """A ring with N equally spaced supports is N-periodic, so each mode's shape holds only the harmonics
+    |n +/- N k| of its labelled n (Bloch's theorem), as the ring-modal table's last line says."""
+    from pgtjax.models.ring import natural_frequencies, nodal_diameter, ring_matrices
+
+    p = rml.default_params()
+    count = len(p.ring.support_nodes)
+    _, modes = natural_frequencies(*ring_matrices(p.ring))
+    modes = np.asarray(modes)
+    for k in range(12):
+        v = modes[:, k].reshape(-1, 3)
+        energy = np.abs(np.fft.rfft(v[:, 0])) ** 2 + np.abs(np.fft.rfft(v[:, 1])) ** 2
+        n = nodal_diameter(modes[:, k])
+        harmonics = np.arange(energy.size)
+        allowed = ((harmonics - n) % count == 0) | ((harmonics + n) % count == 0)
+        assert np.sum(energy[~allowed]) <= 1e-12 * np.sum(energy), (k, n)
+    text = rml_study.format_modal_table(p, rml_study.modal_table(p, 4))
+    assert text.splitlines()[-1].startswith("n: the circumferential harmonic")
+    assert f"|n +/- {count} k|" in text

@@ -1045,4 +1045,13 @@ def format_modal_table(p: rml.RingMovingLoadParams, table: dict) -> str:
         f"{row['wave_number']:3d}"
         for row in table["modes"]
     ]
+    lines.append("n: the circumferential harmonic with the most energy in the mode shape")
+    supports = np.asarray(r.support_nodes)
+    gaps = np.diff(np.concatenate([supports, supports[:1] + r.n_elements]))
+    if supports.size >= 2 and np.all(gaps == gaps[0]):
+        count = supports.size
+        lines[-1] += (
+            f"; with {count} equally spaced supports a mode also carries the harmonics |n +/- {count} k| "
+            f"(k = 1, 2, ...), so the shapes of a band all show the {count} spans between supports"
+        )
     return "\n".join(lines)
