@@ -12,10 +12,11 @@ both for speed on a CPU, where XLA's versions cost most of a gear-pair sample-st
 - erfinv is M. Giles's approximation (the one XLA uses, "Approximating the erfinv function", GPU Computing
   Gems Jade Edition, 2011) with ``w = -log((1 - |x|)(1 + |x|))`` through a vectorizable logarithm
   (:func:`_log`) instead of XLA's ``-log1p(-x^2)``. Besides being cheaper, the product is exact where
-  ``x^2`` rounds: near |x| = 1 XLA's erfinv is off by up to 1e-10 relative, this one by 5e-16.
+  ``x^2`` rounds: near |x| = 1 XLA's erfinv is off by up to 1.1e-10 relative, this one by 5e-16.
 
 A batch's block of normals is drawn in one elementwise loop (:func:`block_normals`). Keys of another JAX
-generator (``rbg``) draw with ``jax.random.normal``, as Monte Carlo did before this module.
+generator (``rbg``), and any key while ``jax_threefry_partitionable`` is off (JAX then draws another stream),
+draw with ``jax.random.normal``, as Monte Carlo did before this module.
 """
 
 from __future__ import annotations
@@ -107,7 +108,8 @@ _ERFINV_TAIL = (
 
 
 def erfinv(x):
-    """Inverse error function of float64 ``x`` in (-1, 1), within about 5e-16 relative (module docstring).
+    """Inverse error function of float64 ``x`` in the open interval (-1, 1) only (at +-1 it is finite, not
+    infinite), within about 5e-16 relative (module docstring).
     The three polynomials are evaluated as one Horner scheme whose coefficients each element selects, the
     shorter ones padded with leading zeros."""
     w = -_log((1.0 - jnp.abs(x)) * (1.0 + jnp.abs(x)))
@@ -125,10 +127,21 @@ def erfinv(x):
 
 def is_threefry(keys) -> bool:
     """Whether ``keys`` (typed, or raw key data read with JAX's default implementation) are threefry-2x32
-    keys, the only ones this module's stream is written for (others draw with ``jax.random.normal``)."""
+    keys and JAX draws their partitionable stream, the only one this module computes (otherwise normals come
+    from ``jax.random.normal``)."""
+    if not jax.config.jax_threefry_partitionable:
+        return False
     if jnp.issubdtype(keys.dtype, jax.dtypes.prng_key):
         return str(jax.random.key_impl(keys)) == "threefry2x32"
     return keys.shape[-1] == 2 and str(jax.config.jax_default_prng_impl) == "threefry2x32"
+
+
+def _check_count(size: int, what: str) -> int:
+    """``size`` if a key's uint32 counters cover it, else ``ValueError`` (JAX would use the counters' high
+    word there, which this module does not)."""
+    if size >= 2**32:
+        raise ValueError(f"{what} holds {size} values; at most 2**32 - 1 are drawn from one key")
+    return size
 
 
 def stream(key) -> str:
@@ -143,11 +156,12 @@ def _typed(keys):
 def normal(key, shape: tuple[int, ...]) -> jax.Array:
     """Standard normals of ``shape`` (float64) for one ``key``: ``jax.random.normal(key, shape)`` to
     rounding for a threefry key (module docstring), exactly for another."""
+    typed = jnp.issubdtype(key.dtype, jax.dtypes.prng_key)
+    if key.ndim != (0 if typed else 1):
+        raise ValueError(f"`key` must be one PRNG key, got an array of keys of shape {key.shape}")
     if not is_threefry(key):
         return jax.random.normal(_typed(key), shape, jnp.float64)
-    size = int(np.prod(shape, dtype=np.int64))
-    if size >= 2**32:
-        raise ValueError(f"`shape` {shape} holds {size} values; at most 2**32 - 1 are drawn from one key")
+    size = _check_count(int(np.prod(shape, dtype=np.int64)), f"`shape` {shape}")
     counter = lax.iota(jnp.uint32, size).reshape(shape)
     words = jax.random.key_data(key)
     return np.sqrt(2.0) * erfinv(_uniform(words[0], words[1], counter))
@@ -160,6 +174,7 @@ def block_normals(keys, rows: int, width: int) -> jax.Array:
     widths and a normal cost 2-3 times as much (docs/performance.md)."""
     if not is_threefry(keys):
         return jnp.swapaxes(jax.vmap(lambda k: normal(k, (rows, width)))(keys), 0, 1)
+    _check_count(rows * width, f"a block of {rows} x {width}")
     words = jax.random.key_data(keys)  # (batch, 2)
     counter = (
         lax.iota(jnp.uint32, rows)[:, None, None] * np.uint32(width)

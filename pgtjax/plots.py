@@ -143,9 +143,11 @@ def closed_curve(ax, xs, ys, **line) -> None:
     points = np.column_stack([xs, ys])
     if np.allclose(points[0], points[-1], rtol=0.0, atol=1e-12 * np.max(np.abs(points))):
         points = points[:-1]
+    if "lw" in line:
+        line["linewidth"] = line.pop("lw")
     line.setdefault("linewidth", mpl.rcParams["lines.linewidth"])  # as a plotted line would be
+    line.setdefault("zorder", 2)  # a line's, above the reference curves drawn before it (a patch's is 1)
     ax.add_patch(Polygon(points, closed=True, fill=False, **line))
-    ax.update_datalim(points)
     ax.autoscale_view()
 
 

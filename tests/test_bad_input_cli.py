@@ -206,3 +206,15 @@ def test_set_overrides_are_checked_like_the_file(argv, needle, capsys):
         code = stop.code
     err = capsys.readouterr().err
     assert code == 2 and needle in err.strip().splitlines()[-1], err
+
+
+def test_refused_run_removes_only_the_folders_it_created(tmp_path, capsys):
+    """The write check's clean-up removes what the check made, never a folder that was there before, even
+    through ``..`` in ``--out``."""
+    (tmp_path / "existing_empty").mkdir()
+    out = tmp_path / "new" / ".." / "existing_empty" / "run"
+    code = main(["gear-pair", "--pdf-times", "99", "--out", str(out)])
+    assert code == 2 and "pdf_times" in capsys.readouterr().err
+    assert (tmp_path / "existing_empty").is_dir()
+    assert not (tmp_path / "existing_empty" / "run").exists()
+    assert not (tmp_path / "new").exists()

@@ -117,3 +117,26 @@ def test_monte_carlo_with_an_rbg_key_agrees_with_a_threefry_key_within_sampling_
     assert not np.array_equal(std_a, std_b)  # other draws
     # the standard deviation's sampling error is about std / sqrt(2 n): 3.5 % at n = 400; allow 5 of each run's
     np.testing.assert_allclose(std_b, std_a, rtol=5 * np.sqrt(2) * 0.035)
+
+
+def test_refuses_key_batches_and_blocks_beyond_the_counters():
+    keys = jax.random.split(jax.random.key(0), 3)
+    with pytest.raises(ValueError, match="one PRNG key"):
+        _random.normal(keys, (4,))
+    with pytest.raises(ValueError, match="a block of 65536 x 65536"):
+        _random.block_normals(_keys(2), 2**16, 2**16)
+
+
+def test_without_partitionable_threefry_the_normals_are_jax_normals():
+    """With ``jax_threefry_partitionable`` off JAX draws another threefry stream; Monte Carlo then keeps JAX's."""
+    key = jax.random.key(9)
+    previous = jax.config.jax_threefry_partitionable
+    jax.config.update("jax_threefry_partitionable", False)
+    try:
+        np.testing.assert_array_equal(
+            np.asarray(_random.normal(key, (5, 2))), np.asarray(jax.random.normal(key, (5, 2), jnp.float64))
+        )
+        assert _random.stream(key) == "jax.random.normal"
+    finally:
+        jax.config.update("jax_threefry_partitionable", previous)
+    assert _random.stream(key) == _random.STREAM

@@ -69,20 +69,25 @@ def _accept_negative_exponents(parser: argparse.ArgumentParser) -> None:
 def _check_writable(out) -> list[Path]:
     """``ValueError`` naming ``--out`` unless the folder can be created and written, checked before any
     computation (a read-only place or a regular file would otherwise fail only after the whole study).
-    Returns the folders the check created, deepest first, for :func:`_remove_if_empty`."""
-    path = Path(out)
-    created = [p for p in (path, *path.parents) if not p.exists()]
+    Returns the folders this check created itself, deepest first, for :func:`_remove_if_empty`."""
+    path = Path(os.path.abspath(out))  # ".." resolved first: a folder is one of ours only if we made it
     probe = path / f".pgtjax-write-check-{os.getpid()}"
+    created: list[Path] = []
     try:
-        path.mkdir(parents=True, exist_ok=True)
+        for folder in reversed([path, *path.parents]):
+            try:
+                folder.mkdir()
+            except FileExistsError:
+                continue
+            created.append(folder)
         probe.write_bytes(b"")
         probe.unlink()
     except OSError as err:
-        _remove_if_empty(created)
+        _remove_if_empty(created[::-1])
         raise ValueError(
-            f"`--out` {str(path)!r} cannot be created or written: {err.strerror or err}"
+            f"`--out` {str(out)!r} cannot be created or written: {err.strerror or err}"
         ) from None
-    return created
+    return created[::-1]
 
 
 def _remove_if_empty(folders) -> None:
@@ -91,7 +96,7 @@ def _remove_if_empty(folders) -> None:
     for folder in folders:
         try:
             folder.rmdir()
-        except OSError:  # not empty (a checkpoint, another process's file) or already gone: keep it
+        except OSError:  # not empty (a checkpoint, a file another run wrote there) or already gone: keep it
             return
 
 

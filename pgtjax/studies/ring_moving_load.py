@@ -562,6 +562,8 @@ def _draw_bands(ax, critical: dict, min_band_speed: float, legend: bool) -> None
     """The mesh-family critical speeds ``omega_k / (36 q)`` above ``min_band_speed``, one colour per group of
     natural frequencies: a shaded band, or a line where the group's frequencies (nearly) coincide and the band
     would be too narrow to see."""
+    if not critical["mesh_family"]:
+        return
     span = max(r["speed_high"] for r in critical["mesh_family"]) - min_band_speed
     for group, (w_low, w_high) in enumerate(critical["groups_rad_s"], start=1):
         colour = _GROUP_COLOURS[(group - 1) % len(_GROUP_COLOURS)]
@@ -1031,6 +1033,23 @@ def modal_table(p: rml.RingMovingLoadParams | None = None, n_modes: int = 24) ->
     return dict(n_elements=p.ring.n_elements, support_nodes=list(p.ring.support_nodes), modes=rows)
 
 
+def _support_periodic(r: RingParams) -> bool:
+    """Whether the ring repeats from one support to the next (at least two supports, equally spaced, alike,
+    and no tooth masses or a whole number of teeth per span): then a mode's shape holds only the harmonics
+    ``|n +/- N k|`` of its wave number n (Bloch's theorem for an N-periodic ring)."""
+    supports = np.sort(np.asarray(r.support_nodes))
+    count = supports.size
+    if count < 2:
+        return False
+    gaps = np.diff(np.concatenate([supports, supports[:1] + r.n_elements]))
+    alike = all(
+        np.ptp(np.atleast_1d(np.asarray(k))) == 0.0
+        for k in (r.k_support_radial, r.k_support_tangential, r.k_support_torsional)
+    )
+    toothless = float(r.tooth_mass) == 0.0 and float(r.tooth_inertia) == 0.0
+    return bool(np.all(gaps == gaps[0]) and alike and (toothless or r.n_teeth % count == 0))
+
+
 def format_modal_table(p: rml.RingMovingLoadParams, table: dict) -> str:
     """Plain-text :func:`modal_table` of ``p``'s ring, headed by its dimensions and supports."""
     r = p.ring
@@ -1046,10 +1065,8 @@ def format_modal_table(p: rml.RingMovingLoadParams, table: dict) -> str:
         for row in table["modes"]
     ]
     lines.append("n: the circumferential harmonic with the most energy in the mode shape")
-    supports = np.asarray(r.support_nodes)
-    gaps = np.diff(np.concatenate([supports, supports[:1] + r.n_elements]))
-    if supports.size >= 2 and np.all(gaps == gaps[0]):
-        count = supports.size
+    if _support_periodic(r):
+        count = len(r.support_nodes)
         lines[-1] += (
             f"; with {count} equally spaced supports a mode also carries the harmonics |n +/- {count} k| "
             f"(k = 1, 2, ...), so the shapes of a band all show the {count} spans between supports"
