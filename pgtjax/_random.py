@@ -125,13 +125,17 @@ def erfinv(x):
     return p * x
 
 
+def _is_typed(keys) -> bool:
+    return jnp.issubdtype(keys.dtype, jax.dtypes.prng_key)
+
+
 def is_threefry(keys) -> bool:
     """Whether ``keys`` (typed, or raw key data read with JAX's default implementation) are threefry-2x32
     keys and JAX draws their partitionable stream, the only one this module computes (otherwise normals come
     from ``jax.random.normal``)."""
     if not jax.config.jax_threefry_partitionable:
         return False
-    if jnp.issubdtype(keys.dtype, jax.dtypes.prng_key):
+    if _is_typed(keys):
         return str(jax.random.key_impl(keys)) == "threefry2x32"
     return keys.shape[-1] == 2 and str(jax.config.jax_default_prng_impl) == "threefry2x32"
 
@@ -150,14 +154,13 @@ def stream(key) -> str:
 
 
 def _typed(keys):
-    return keys if jnp.issubdtype(keys.dtype, jax.dtypes.prng_key) else jax.random.wrap_key_data(keys)
+    return keys if _is_typed(keys) else jax.random.wrap_key_data(keys)
 
 
 def normal(key, shape: tuple[int, ...]) -> jax.Array:
     """Standard normals of ``shape`` (float64) for one ``key``: ``jax.random.normal(key, shape)`` to
     rounding for a threefry key (module docstring), exactly for another."""
-    typed = jnp.issubdtype(key.dtype, jax.dtypes.prng_key)
-    if key.ndim != (0 if typed else 1):
+    if key.ndim != (0 if _is_typed(key) else 1):
         raise ValueError(f"`key` must be one PRNG key, got an array of keys of shape {key.shape}")
     if not is_threefry(key):
         return jax.random.normal(_typed(key), shape, jnp.float64)

@@ -134,6 +134,7 @@ def main(argv=None) -> int:
         os._exit(130)
 
     created: list[Path] = []  # folders made by the write check, removed again if the command fails empty
+    succeeded = False
     main_thread = threading.current_thread() is threading.main_thread()  # handlers live there only
     previous = signal.signal(signal.SIGINT, interrupted) if main_thread else None
     try:
@@ -148,21 +149,19 @@ def main(argv=None) -> int:
         if out is not None:
             created = _check_writable(out)
         status = args.func(args)
-        if status:
-            _remove_if_empty(created)
+        succeeded = not status
         return status
     except (ValueError, argparse.ArgumentTypeError) as err:  # bad input: a clear message, no traceback
-        _remove_if_empty(created)
         print(f"pgtjax: error: {err}", file=sys.stderr)
         return 2
     except SolverError as err:  # a numerical failure, with when and where
-        _remove_if_empty(created)
         print(f"pgtjax: numerical failure: {err}", file=sys.stderr)
         return 1
     except OSError as err:  # a file that could not be read or written: one line
-        _remove_if_empty(created)
         print(f"pgtjax: error: {err}", file=sys.stderr)
         return 1
     finally:
+        if not succeeded:
+            _remove_if_empty(created)
         if main_thread:
             signal.signal(signal.SIGINT, previous)
