@@ -3,9 +3,13 @@ back only by a run with the same description (so a resumed run cannot mix two di
 
 from __future__ import annotations
 
+import functools
 import hashlib
+import inspect
 import json
+import os
 import re
+import types
 import zipfile
 from pathlib import Path
 
@@ -17,28 +21,74 @@ from ._files import write_atomic
 CHECKPOINT_FORMAT = "pgtjax-checkpoint-1"
 
 
-def _leaf_bytes(leaf) -> bytes:
+_ADDRESS = re.compile(r" at 0x[0-9a-fA-F]+")
+
+
+def _const_bytes(const) -> bytes:
+    """A code object's constant, the same in every process (frozensets sorted: their order follows the
+    string hash seed)."""
+    if isinstance(const, types.CodeType):
+        return _code_bytes(const)
+    if isinstance(const, tuple):
+        return b"(" + b",".join(_const_bytes(c) for c in const) + b")"
+    if isinstance(const, frozenset):
+        return b"{" + b",".join(sorted(_const_bytes(c) for c in const)) + b"}"
+    return repr(const).encode()
+
+
+def _code_bytes(code: types.CodeType) -> bytes:
+    return code.co_code + _const_bytes(code.co_consts) + repr(code.co_names).encode()
+
+
+def _callable_bytes(fn, seen: frozenset) -> bytes:
+    """A function as what it computes: its name and bytecode, and the values it carries (a partial's
+    arguments, defaults, closure cells, a bound method's object). Globals it reads are not included."""
+    if id(fn) in seen:  # a function reachable from its own closure
+        return b"<recursive>"
+    seen = seen | {id(fn)}
+    if isinstance(fn, functools.partial):
+        return b"partial:" + _callable_bytes(fn.func, seen) + _tree_bytes((fn.args, fn.keywords), seen)
+    if inspect.ismethod(fn):
+        return b"method:" + _callable_bytes(fn.__func__, seen) + _tree_bytes(fn.__self__, seen)
+    name = f"{getattr(fn, '__module__', '')}.{getattr(fn, '__qualname__', type(fn).__name__)}".encode()
+    code = getattr(fn, "__code__", None)
+    if not isinstance(code, types.CodeType):  # a builtin or NumPy ufunc: its name says what it computes
+        return name if hasattr(fn, "__qualname__") else name + _ADDRESS.sub("", repr(fn)).encode()
+    cells = []
+    for cell in fn.__closure__ or ():
+        try:
+            cells.append(cell.cell_contents)
+        except ValueError:  # a cell not yet filled
+            cells.append(None)
+    carried = (fn.__defaults__, fn.__kwdefaults__, cells)
+    return name + _code_bytes(code) + _tree_bytes(carried, seen)
+
+
+def _leaf_bytes(leaf, seen: frozenset = frozenset()) -> bytes:
     if isinstance(leaf, jax.Array) and jax.dtypes.issubdtype(leaf.dtype, jax.dtypes.prng_key):
         leaf = jax.random.key_data(leaf)
     if isinstance(leaf, jax.Array | np.ndarray | np.generic | int | float | complex | bool):
         a = np.asarray(leaf)
         return str(a.dtype).encode() + str(a.shape).encode() + np.ascontiguousarray(a).tobytes()
-    if callable(leaf):  # a plain function: its name only (a changed body is not detected)
-        return (
-            f"{getattr(leaf, '__module__', '')}.{getattr(leaf, '__qualname__', type(leaf).__name__)}".encode()
-        )
-    return repr(leaf).encode()
+    if callable(leaf) and not isinstance(leaf, type):
+        return _callable_bytes(leaf, seen)
+    return _ADDRESS.sub("", repr(leaf)).encode()
+
+
+def _tree_bytes(tree, seen: frozenset = frozenset()) -> bytes:
+    leaves, treedef = jax.tree.flatten(tree)
+    out = [_ADDRESS.sub("", str(treedef)).encode()]  # no memory addresses
+    out += [_leaf_bytes(leaf, seen) for leaf in leaves]
+    return b"|".join(out)
 
 
 def tree_digest(*trees) -> str:
-    """A fingerprint of pytrees' structure and values (array bytes; names of plain functions), to recognise
-    the same computation when a run is resumed."""
+    """A fingerprint of pytrees' structure and values, to recognise the same computation when a run is
+    resumed: array bytes, and functions by name, bytecode and the values they carry (closures, defaults,
+    ``functools.partial`` arguments); module-level globals a function reads are not part of it."""
     h = hashlib.sha256()
     for tree in trees:
-        leaves, treedef = jax.tree.flatten(tree)
-        h.update(re.sub(r" at 0x[0-9a-fA-F]+", "", str(treedef)).encode())  # no memory addresses
-        for leaf in leaves:
-            h.update(_leaf_bytes(leaf))
+        h.update(_tree_bytes(tree))
     return h.hexdigest()[:24]
 
 
@@ -49,26 +99,39 @@ def checkpoint_file(checkpoint, resume: bool) -> Path | None:
         if resume:
             raise ValueError("`resume=True` needs a `checkpoint` path to resume from")
         return None
+    if not isinstance(checkpoint, str | os.PathLike):
+        raise ValueError(
+            f"`checkpoint` must be a path (str or pathlib.Path) ending in .npz, got {type(checkpoint).__name__}"
+        )
     path = Path(checkpoint)
     if path.suffix != ".npz":
         raise ValueError(f"`checkpoint` must be a path ending in .npz, got {str(path)!r}")
+    if path.parent.exists() and not path.parent.is_dir():
+        raise ValueError(f"`checkpoint`: {str(path.parent)!r} is a file, not a folder")
     if not path.parent.is_dir():
         raise ValueError(f"`checkpoint`: folder {str(path.parent)!r} does not exist")
     if path.is_dir():
         raise ValueError(f"`checkpoint` {str(path)!r} is a folder")
+    probe = path.with_name(f".{path.stem}.write-check-{os.getpid()}")
+    try:  # a folder that cannot be written would otherwise fail at the first checkpoint, after a batch's work
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as err:
+        raise ValueError(
+            f"`checkpoint`: folder {str(path.parent)!r} cannot be written: {err.strerror or err}"
+        ) from None
     return path
 
 
-def save_checkpoint(path, arrays: dict[str, np.ndarray], description: dict) -> Path:
-    """Write ``arrays`` and the run's ``description`` (JSON-able) to ``path`` (``.npz``) atomically."""
-    meta = json.dumps(dict(format=CHECKPOINT_FORMAT, **description), sort_keys=True)
+def save_checkpoint(path, arrays: dict[str, np.ndarray], description: dict, *, what: str) -> Path:
+    """Write ``arrays`` and the ``description`` (JSON-able) of a run of ``what`` (the function checkpointed)
+    to ``path`` (``.npz``) atomically."""
+    meta = json.dumps(dict(format=CHECKPOINT_FORMAT, run=what, **description), sort_keys=True)
     return write_atomic(path, lambda p: np.savez(p, __checkpoint__=np.asarray(meta), **arrays))
 
 
-def load_checkpoint(path, description: dict, *, what: str) -> dict[str, np.ndarray]:
-    """The arrays of the checkpoint at ``path``; ``ValueError`` if it is missing, unreadable, not a pgtjax
-    checkpoint, or written by a run whose description differs (the differing entries are named)."""
-    path = Path(path)
+def _read(path: Path, what: str) -> tuple[dict[str, np.ndarray], dict]:
+    """The arrays and the description of the checkpoint at ``path``, or a ``ValueError`` saying why not."""
     if not path.is_file():
         raise ValueError(f"cannot resume {what}: no checkpoint at {str(path)!r}; run without resume to start")
     try:
@@ -80,9 +143,52 @@ def load_checkpoint(path, description: dict, *, what: str) -> dict[str, np.ndarr
         saved = json.loads(str(arrays.pop("__checkpoint__")))
     except (KeyError, ValueError):
         raise ValueError(f"cannot resume {what}: {str(path)!r} is not a pgtjax checkpoint") from None
-    if saved.get("format") != CHECKPOINT_FORMAT:
+    if not isinstance(saved, dict) or saved.get("format") != CHECKPOINT_FORMAT:
         raise ValueError(f"cannot resume {what}: {str(path)!r} is not a pgtjax checkpoint")
-    expected = json.loads(json.dumps(dict(format=CHECKPOINT_FORMAT, **description)))
+    if saved.get("run", what) != what:
+        raise ValueError(
+            f"cannot resume {what} from {str(path)!r}: it is a checkpoint of {saved['run']}, not of {what}"
+        )
+    return arrays, saved
+
+
+def _refuse_differences(path: Path, what: str, saved: dict, expected: dict) -> None:
+    """``ValueError`` naming every entry of ``expected`` whose value ``saved`` does not share."""
+    differ = sorted(k for k in expected if saved.get(k) != expected[k])
+    if not differ:
+        return
+    detail = "; ".join(f"{k}: checkpoint {saved.get(k)!r}, this run {expected.get(k)!r}" for k in differ)
+    hint = ""
+    # the defaults of these follow the machine: say how to match them
+    if set(differ) & {"devices", "samples_per_device"}:
+        hint = (
+            "; resume with the interrupted run's device count and batch size (`pgtjax --cpu-devices N`, "
+            "`--chunk-size`; in Python `pg.use_cpu_cores(N)`, `chunk_size=`)"
+        )
+    raise ValueError(
+        f"cannot resume {what} from {str(path)!r}: it was written by another run ({detail}){hint}"
+    )
+
+
+def _as_json(description: dict, what: str) -> dict:
+    return json.loads(json.dumps(dict(format=CHECKPOINT_FORMAT, run=what, **description)))
+
+
+def check_checkpoint(path, entries: dict, *, what: str) -> None:
+    """Refuse at once a checkpoint whose description differs in any of ``entries`` (a part of the full
+    description, known before the run's other work): the full comparison comes when it is loaded."""
+    path = Path(path)
+    _, saved = _read(path, what)
+    expected = _as_json(entries, what)
+    _refuse_differences(path, what, saved, {k: v for k, v in expected.items() if k in saved})
+
+
+def load_checkpoint(path, description: dict, *, what: str) -> dict[str, np.ndarray]:
+    """The arrays of the checkpoint at ``path``; ``ValueError`` if it is missing, unreadable, not a pgtjax
+    checkpoint, or written by a run whose description differs (the differing entries are named)."""
+    path = Path(path)
+    arrays, saved = _read(path, what)
+    expected = _as_json(description, what)
     if set(saved) != set(expected):  # another description altogether: not worth listing value by value
         unknown = ", ".join(sorted(set(saved) - set(expected))) or "nothing"
         missing = ", ".join(sorted(set(expected) - set(saved))) or "nothing"
@@ -91,17 +197,5 @@ def load_checkpoint(path, description: dict, *, what: str) -> dict[str, np.ndarr
             f"(it records {unknown} that this version does not, and lacks {missing}); run without resume to "
             "start again"
         )
-    differ = sorted(k for k in set(saved) | set(expected) if saved.get(k) != expected.get(k))
-    if differ:
-        detail = "; ".join(f"{k}: checkpoint {saved.get(k)!r}, this run {expected.get(k)!r}" for k in differ)
-        hint = ""
-        # the defaults of these follow the machine: say how to match them
-        if set(differ) & {"devices", "samples_per_device"}:
-            hint = (
-                "; resume with the interrupted run's device count and batch size (`pgtjax --cpu-devices N`, "
-                "`--chunk-size`; in Python `pg.use_cpu_cores(N)`, `chunk_size=`)"
-            )
-        raise ValueError(
-            f"cannot resume {what} from {str(path)!r}: it was written by another run ({detail}){hint}"
-        )
+    _refuse_differences(path, what, saved, expected)
     return arrays

@@ -15,13 +15,50 @@ from collections.abc import Callable
 from pathlib import Path
 
 
+def _pid_is_gone(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)  # raises if there is no such process
+    except ProcessLookupError:
+        return True
+    except OSError:  # another user's process, or a platform without signals: assume it lives
+        return False
+    return False
+
+
+def _remove_dead_partials(path: Path) -> None:
+    """Remove the temporary files of earlier writes of ``path`` whose process was killed outright."""
+    prefix = f".{path.stem}.partial-"
+    for old in path.parent.glob(f"{prefix}*{path.suffix}"):
+        pid = old.name[len(prefix) : len(old.name) - len(path.suffix)]
+        if pid.isdigit() and _pid_is_gone(int(pid)):
+            old.unlink(missing_ok=True)
+
+
+def _fsync(path: Path, directory: bool = False) -> None:
+    try:
+        fd = os.open(path, os.O_RDONLY | (getattr(os, "O_DIRECTORY", 0) if directory else 0))
+    except OSError:  # e.g. folders cannot be opened on Windows
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
 def write_atomic(path, write: Callable[[Path], None]) -> Path:
-    """Call ``write(temporary_path)`` and rename the result to ``path``; returns ``path``."""
+    """Call ``write(temporary_path)`` and rename the result to ``path``; returns ``path``. The file is flushed
+    to disk before the rename, so that a crash cannot leave an empty file under the final name; temporary
+    files of earlier writes of ``path`` by processes that no longer exist are removed."""
     path = Path(path)
+    _remove_dead_partials(path)
     partial = path.with_name(f".{path.stem}.partial-{os.getpid()}{path.suffix}")
     try:
         write(partial)
+        _fsync(partial)
         os.replace(partial, path)
+        _fsync(path.parent, directory=True)
     finally:
         partial.unlink(missing_ok=True)
     return path
@@ -83,13 +120,9 @@ def _previous_files(out: Path) -> list[Path]:
 def _remove_abandoned_staging(out: Path) -> None:
     """Remove the staging folders of runs that were killed (their process no longer exists)."""
     for folder in out.glob(".partial-*"):
-        try:
-            pid = int(folder.name.rsplit("-", 1)[1])
-            os.kill(pid, 0)  # raises if there is no such process
-        except ProcessLookupError:
+        pid = folder.name.rsplit("-", 1)[-1]
+        if pid.isdigit() and _pid_is_gone(int(pid)):
             shutil.rmtree(folder, ignore_errors=True)
-        except (ValueError, IndexError, PermissionError, OSError):
-            continue
 
 
 #: one line for the files every run writes beside its own (see :func:`publish`'s ``index``)

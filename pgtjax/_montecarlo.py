@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._checkpoint import checkpoint_file, load_checkpoint, save_checkpoint, tree_digest
+from ._checkpoint import check_checkpoint, checkpoint_file, load_checkpoint, save_checkpoint, tree_digest
 from ._eigenbasis import eigen_initial_state, eigen_propagator, eigen_recorded, eigen_sample_step
 from ._failure import SolverError, raise_if_nonfinite
 from ._loop import saved_scan
@@ -254,6 +254,7 @@ def _sample_statistics(
 
 
 _SAMPLE_AXIS = "samples"
+MAX_SAMPLES = 2**32  # sample ids are folded into the key as 32-bit integers
 
 
 @eqx.filter_jit
@@ -338,19 +339,62 @@ def checkpoint_samples(checkpoint, *, distributed=True) -> int | None:
         return None
 
 
-def check_options(n_samples, chunk_size, checkpoint=None, resume: bool = False, *, distributed=True):
+def _samples_per_device(n_samples: int, chunk_size, devices: list, n_proc: int) -> int:
+    """Samples per device and round: ``chunk_size`` (the devices' default where None), fewer where the run is
+    smaller than one round."""
+    chunk_size = default_chunk_size(devices) if chunk_size is None else chunk_size
+    return min(chunk_size, -(-n_samples // (n_proc * len(devices))))
+
+
+def check_options(
+    n_samples, chunk_size, checkpoint=None, resume: bool = False, *, key=None, devices=None, distributed=True
+):
     """The sizes and checkpoint options of :func:`monte_carlo`, checked before any computation (a study calls
-    this before its other work, so that a bad option fails at once). Returns this process's checkpoint path."""
+    this before its other work, so that a bad option fails at once). With ``resume``, a checkpoint of another
+    sample count, key (where given), device count or batch size is refused here too. Returns this process's
+    checkpoint path."""
     check_count("n_samples", n_samples, minimum=2)
+    if n_samples > MAX_SAMPLES:  # a sample's stream is fold_in(key, id) with a 32-bit id
+        raise ValueError(
+            f"`n_samples` must be at most 2**32 = {MAX_SAMPLES:,} (sample ids are 32-bit; beyond, samples "
+            f"would repeat earlier samples' noise), got {n_samples:,}; split the run over several keys"
+        )
     if chunk_size is not None:  # None: the devices' default (default_chunk_size)
         check_count("chunk_size", chunk_size)
     n_proc, proc = (jax.process_count(), jax.process_index()) if distributed else (1, 0)
     path = _checkpoint_path(checkpoint, resume, n_proc, proc)
-    if resume and not path.is_file():
-        raise ValueError(
-            f"cannot resume monte_carlo: no checkpoint at {str(path)!r}; run without resume to start"
+    if resume:
+        devices = local_devices(devices)
+        entries = dict(
+            n_samples=int(n_samples),
+            samples_per_device=_samples_per_device(n_samples, chunk_size, devices, n_proc),
+            devices=len(devices),
+            processes=n_proc,
+            process=proc,
         )
+        if key is not None:
+            check_key(key)
+            entries["key"] = np.asarray(jax.random.key_data(key) if _is_typed_key(key) else key).tolist()
+        check_checkpoint(path, entries, what="monte_carlo")
     return path
+
+
+def _check_processes_agree(n_dev: int, per_device: int) -> None:
+    """Every process must split the samples alike: each one computes the sample ids of every process's rows
+    from its own device count and batch size, so a mismatch would skip or repeat samples."""
+    from jax.experimental import multihost_utils
+
+    sizes = np.asarray(multihost_utils.process_allgather(np.array([n_dev, per_device], dtype=np.int64)))
+    sizes = sizes.reshape(jax.process_count(), 2)
+    if np.any(sizes != sizes[0]):
+        listed = "; ".join(
+            f"process {p}: {d} device(s), {b} samples per device" for p, (d, b) in enumerate(sizes)
+        )
+        raise ValueError(
+            f"monte_carlo: the processes of a distributed run must have the same number of devices and "
+            f"`chunk_size` ({listed}); give every process as many devices (e.g. one GPU each, or "
+            "`pg.use_cpu_cores(N)` alike) and the same `chunk_size`"
+        )
 
 
 def _gather_processes(moments: _Moments, cov_columns) -> _Moments:
@@ -435,7 +479,9 @@ def monte_carlo(
     check_contact_stiffness_over_time(system, t0, dt, n_steps)
     check_stability(system, t0, horizon=n_steps * float(dt))
     integrator = resolve_integrator(integrator, noise_scheme)
-    checkpoint = check_options(n_samples, chunk_size, checkpoint, resume, distributed=distributed)
+    checkpoint = check_options(
+        n_samples, chunk_size, checkpoint, resume, key=key, devices=devices, distributed=distributed
+    )
     if propagation not in PROPAGATIONS:
         raise ValueError(f"`propagation` must be one of {PROPAGATIONS}, got {propagation!r}")
     eigen = None
@@ -482,13 +528,14 @@ def monte_carlo(
     devices = local_devices(devices)
     n_proc, proc = (jax.process_count(), jax.process_index()) if distributed else (1, 0)
     n_dev = len(devices)
-    chunk_size = default_chunk_size(devices) if chunk_size is None else chunk_size
     mesh = device_mesh(devices, _SAMPLE_AXIS)
     # round r: n_proc x n_dev rows of per_device consecutive sample ids, row (p, d) on device d of process p
-    per_device = min(chunk_size, -(-n_samples // (n_proc * n_dev)))
+    per_device = _samples_per_device(n_samples, chunk_size, devices, n_proc)
     round_size = n_proc * n_dev * per_device
     n_rounds = -(-n_samples // round_size)
     checkpoint_every = check_count("checkpoint_every", checkpoint_every)
+    if n_proc > 1:
+        _check_processes_agree(n_dev, per_device)
     description = dict(
         # one entry per input, so that a refused resume names what differs (a changed seed shows as the key)
         system=tree_digest(system),
@@ -527,10 +574,12 @@ def monte_carlo(
             + np.arange(n_dev * per_device).reshape(n_dev, per_device)
         )
         weights = (ids < n_samples).astype(np.float64)
+        # padding rows (weight 0) repeat the last sample: a sample of their own could be NaN where every real
+        # one is finite, and 0 x NaN would spoil the sums
         parts, bad = _chunk(
             system,
             key,
-            jnp.asarray(ids),
+            jnp.asarray(np.minimum(ids, n_samples - 1)),
             jnp.asarray(weights),
             u0,
             v0,
@@ -552,7 +601,12 @@ def monte_carlo(
             part = _Moments(float(weights[d].sum()), *(a[d] for a in parts), bad=float(bad[d]))
             moments = part if moments is None else moments.merge(part, cov_columns)
         if checkpoint is not None and ((r + 1) % checkpoint_every == 0 or r + 1 == n_rounds):
-            save_checkpoint(checkpoint, dict(moments.arrays(), next_round=np.asarray(r + 1)), description)
+            save_checkpoint(
+                checkpoint,
+                dict(moments.arrays(), next_round=np.asarray(r + 1)),
+                description,
+                what="monte_carlo",
+            )
         if bar is not None:
             bar.update(min(round_size, n_samples - r * round_size))
     if bar is not None:

@@ -127,8 +127,50 @@ CASES = [
     (
         "resume without checkpoint",
         lambda d: ["planetary", "--resume", "--out", str(d / "o")],
-        "cannot resume",
+        "run without --resume",
     ),
+    (
+        "resume another seed",
+        lambda d: [
+            "planetary",
+            "--resume",
+            "--seed",
+            "4",
+            "--samples",
+            "300",
+            "--checkpoint",
+            _checkpoint(d),
+        ],
+        "(key, from --seed: checkpoint [0, 3], this run [0, 4])",
+    ),  # fmt: skip
+    (
+        "coordinator without a port",
+        lambda d: ["planetary", "--coordinator", "localhost", "--processes", "2", "--process-id", "0"],
+        "`--coordinator` must be HOST:PORT",
+    ),  # fmt: skip
+    (
+        "coordinator port a word",
+        lambda d: [
+            "planetary",
+            "--coordinator",
+            "127.0.0.1:notaport",
+            "--processes",
+            "2",
+            "--process-id",
+            "0",
+        ],
+        "`--coordinator` must be HOST:PORT",
+    ),  # fmt: skip
+    (
+        "checkpoint in a file",
+        lambda d: ["planetary", "--checkpoint", str(_text(d, "x") / "ck.npz"), "--out", str(d / "o")],
+        "`--checkpoint`: ",
+    ),  # fmt: skip
+    (
+        "checkpoint folder not writable",
+        lambda d: ["planetary", "--checkpoint", "/proc/ck.npz", "--out", str(d / "o")],
+        "`--checkpoint`: folder '/proc' cannot be written",
+    ),  # fmt: skip
     (
         "optimize periods negative",
         lambda d: ["optimize", "--periods", "-1", "--out", str(d / "o")],
@@ -158,6 +200,28 @@ def _text(folder, text):
     path = folder / "file.txt"
     path.write_text(text)
     return path
+
+
+def _checkpoint(folder) -> str:
+    """A checkpoint of the planetary Monte Carlo of `--seed 3 --samples 300` on this machine's devices (its
+    statistics are not read: a resume of another seed must be refused before any work)."""
+    import jax
+
+    from pgtjax._checkpoint import save_checkpoint
+    from pgtjax._montecarlo import _samples_per_device
+
+    path = folder / "ck.npz"
+    devices = jax.local_devices()
+    description = dict(
+        n_samples=300,
+        key=[0, 3],
+        samples_per_device=_samples_per_device(300, None, devices, 1),
+        devices=len(devices),
+        processes=1,
+        process=0,
+    )
+    save_checkpoint(path, {"count": 0.0}, description, what="monte_carlo")
+    return str(path)
 
 
 @pytest.mark.parametrize("case", CASES, ids=[c[0] for c in CASES])

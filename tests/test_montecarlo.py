@@ -72,6 +72,49 @@ def test_same_key_same_statistics_whatever_the_chunk_size():
     assert 0 < float(a.histograms["u:x1"].sum()) <= 301
 
 
+def test_padding_samples_cannot_spoil_the_statistics_of_finite_samples():
+    """A batch is padded to whole rows with weight-0 samples. If those drew noise of their own, a sample outside
+    the run could be NaN (here: a law defined only near the mean deflection) while every real one is finite,
+    and 0 x NaN would make the statistics NaN for one chunk size and not another."""
+    import equinox as eqx
+
+    from pgtjax._contact import Backlash
+    from pgtjax._montecarlo import _INITIAL_STATE_TAG
+    from pgtjax._random import normal
+    from pgtjax._system import initial_state
+    from pgtjax.models import gear_pair as gp
+
+    system = gp.build()
+    p0 = np.diag([0.0, 0.0, 1e-10, 0.0, 0.0, 0.0])  # a random initial third coordinate, std 1e-5
+    g = np.asarray(system.contact_direction(0.0))[:, 0]
+
+    def offsets(key):  # each sample's initial deflection from the mean, as monte_carlo draws it
+        z = [
+            normal(jax.random.fold_in(jax.random.fold_in(key, s), _INITIAL_STATE_TAG), (6,))[2]
+            for s in range(12)
+        ]
+        return np.abs(g[2] * 1e-5 * np.asarray(z))
+
+    n = 9
+    # a key for which a would-be padding sample (ids 9-11) lies beyond every real one
+    key = next(k for k in map(jax.random.key, range(100)) if offsets(k)[n:].max() > offsets(k)[:n].max())
+    limit = 0.5 * (offsets(key)[n:].max() + offsets(key)[:n].max())
+    centre = float(g @ np.asarray(initial_state(system, None, None)[0]))  # the mean initial deflection
+
+    class Limited(Backlash):  # NaN beyond `limit` from the mean, like the square root of a negative number
+        def force(self, delta, k, b):
+            return super().force(delta, k, b) + jnp.where(jnp.abs(delta - centre) < limit, 0.0, jnp.nan)
+
+    limited = eqx.tree_at(lambda s: s.contacts.law, system, Limited())
+    kw = dict(n_samples=n, key=key, dt=1e-5, n_steps=1, save_every=1, progress=False, initial_covariance=p0)
+    whole = pg.monte_carlo(limited, chunk_size=n, **kw)  # one batch of 9: no padding
+    padded = pg.monte_carlo(limited, chunk_size=4, **kw)  # batches of 4: three padding samples
+    assert np.all(np.isfinite(whole.std_u)) and whole.std_u.dtype == jnp.float64
+    np.testing.assert_allclose(padded.mean_u, whole.mean_u, rtol=1e-12, atol=1e-20)
+    np.testing.assert_allclose(padded.std_u, whole.std_u, rtol=1e-10)
+    assert padded.n_samples == n and float(padded.unconverged) == 0.0
+
+
 # ----------------------------------------------------------------------------- exact nonlinear answer
 # SDOF  m x'' + c x' + f(x) = F0 + w(t),  E[w w] = 2 pi S0 delta,  f = backlash (b, k).
 # Stationary Fokker-Planck solution: p(x, v) ~ exp(-(c / (pi S0)) (m v^2 / 2 + P(x) - F0 x)), so

@@ -132,6 +132,20 @@ def test_two_processes_equal_one_process(tmp_path, reference):
         _assert_same(dict(np.load(tmp_path / f"p{p}.npz")), reference, 1e-12)
 
 
+def test_processes_that_would_split_the_samples_differently_are_refused(tmp_path):
+    """Each process derives every process's sample ids from its own batch size: unequal ones would skip some
+    samples and repeat others, so the run stops in every process before computing anything."""
+    port = _free_port()
+    procs = [
+        _worker("process", p, 2, port, tmp_path / f"p{p}.npz", chunk) for p, chunk in enumerate((40, 30))
+    ]
+    for code, err in [_finish(p) for p in procs]:
+        assert code == 3, err
+        assert "must have the same number of devices and `chunk_size`" in err
+        assert "process 0: 1 device(s), 40 samples per device; process 1: 1 device(s), 30 samples" in err
+    assert not list(tmp_path.iterdir())
+
+
 def test_killed_after_second_checkpoint_resumes_to_the_uninterrupted_run(tmp_path):
     checkpoint = tmp_path / "mc.npz"
     code, err = _finish(_worker("killed", checkpoint))
@@ -184,17 +198,27 @@ def test_resume_refuses_another_run_and_bad_paths(tmp_path):
         run(checkpoint=tmp_path / "foreign.npz", resume=True)
     from pgtjax._checkpoint import save_checkpoint
 
-    save_checkpoint(tmp_path / "old.npz", {"count": np.asarray(3.0)}, {"run": "0123", "n_samples": 203})
+    save_checkpoint(
+        tmp_path / "old.npz",
+        {"count": np.asarray(3.0)},
+        {"seed": "0123", "n_samples": 203},
+        what="monte_carlo",
+    )
     with pytest.raises(
-        ValueError, match="another version of pgtjax .it records run that this version does not"
+        ValueError, match="another version of pgtjax .it records seed that this version does not"
     ):
         run(checkpoint=tmp_path / "old.npz", resume=True)
+    save_checkpoint(tmp_path / "design.npz", {"count": np.asarray(3.0)}, {"n_samples": 203}, what="evaluate")
+    with pytest.raises(ValueError, match="it is a checkpoint of evaluate, not of monte_carlo"):
+        run(checkpoint=tmp_path / "design.npz", resume=True)
+    with pytest.raises(ValueError, match=r"`checkpoint` must be a path \(str or pathlib.Path\).*got int"):
+        run(checkpoint=5)
     # one written before Monte Carlo drew its normals with pgtjax._random (they differ in the last bits)
     with np.load(checkpoint) as data:
         arrays = {k: data[k] for k in data.files}
     meta = json.loads(str(arrays.pop("__checkpoint__")))
-    del meta["normals"], meta["format"]
-    save_checkpoint(tmp_path / "before_normals.npz", arrays, meta)
+    del meta["normals"], meta["format"], meta["run"]
+    save_checkpoint(tmp_path / "before_normals.npz", arrays, meta, what="monte_carlo")
     with pytest.raises(
         ValueError,
         match="another version of pgtjax .it records nothing that this version does not, and lacks normals",
@@ -343,3 +367,27 @@ def test_interrupt_message_says_whether_there_is_anything_to_resume(tmp_path):
     assert (
         interrupted_message(False, []) == "interrupted: no output files written (earlier outputs unchanged)"
     )
+
+
+def test_output_manifest_lists_every_process_checkpoint_this_run_wrote(tmp_path):
+    """Process 0 writes the outputs of a distributed run: its manifest lists each process's checkpoint file in
+    the folder, and not one an earlier run left there."""
+    import time
+
+    from pgtjax.cli.planetary import _checkpoints_written
+
+    base = tmp_path / "monte_carlo.checkpoint.npz"
+    old = tmp_path / "monte_carlo.checkpoint.process-0-of-3.npz"
+    old.write_bytes(b"earlier run")
+    os.utime(old, (time.time() - 3600, time.time() - 3600))
+    started = time.time()
+    ours = [tmp_path / f"monte_carlo.checkpoint.process-{p}-of-2.npz" for p in range(2)]
+    for path in ours:
+        path.write_bytes(b"this run")
+    assert _checkpoints_written(base, since=started, resumed=False, processes=2) == ours
+    assert _checkpoints_written(base, since=started, resumed=False, processes=3) == []  # all older or missing
+    assert _checkpoints_written(base, since=started, resumed=True, processes=3) == [old]  # resumed: older too
+    assert _checkpoints_written(base, since=started, resumed=False) == []  # one process: its own file only
+    base.write_bytes(b"this run")
+    assert _checkpoints_written(base, since=started, resumed=False) == [base]
+    assert _checkpoints_written(None, since=started, resumed=False) == []

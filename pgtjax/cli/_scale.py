@@ -45,6 +45,33 @@ def checkpoint_path(args, out: Path) -> Path:
     return args.checkpoint if args.checkpoint is not None else out / CHECKPOINT_NAME
 
 
+#: the Python names of Monte Carlo's options as the command line spells them, for messages raised below it
+_OPTION_NAMES = {
+    "`checkpoint`": "`--checkpoint`",
+    "`chunk_size`": "`--chunk-size`",
+    "`n_samples`": "`--samples`",
+    "`resume=True`": "`--resume`",
+    "run without resume": "run without --resume",
+    "key: checkpoint": "key, from --seed: checkpoint",
+}
+
+
+def as_command_line(err: ValueError) -> ValueError:
+    """``err`` with Monte Carlo's Python option names replaced by their command-line options."""
+    text = str(err)
+    for python, option in _OPTION_NAMES.items():
+        text = text.replace(python, option)
+    return ValueError(text)
+
+
+def _check_coordinator(address: str) -> None:
+    host, _, port = address.rpartition(":")
+    if not host or not port.isdigit() or not 1 <= int(port) <= 65535:
+        raise ValueError(
+            f"`--coordinator` must be HOST:PORT with a port from 1 to 65535 (e.g. 127.0.0.1:12355), got {address!r}"
+        )
+
+
 def start_processes(args) -> int:
     """Join JAX's distributed runtime if asked to (before any JAX computation); returns this process's index
     (0 when running alone). ``ValueError`` for an incomplete or inconsistent set of options."""
@@ -58,6 +85,8 @@ def start_processes(args) -> int:
             f"`--process-id` must be in 0..{args.processes - 1} (--processes {args.processes}), "
             f"got {args.process_id}"
         )
+    if args.coordinator is not None:
+        _check_coordinator(args.coordinator)
     import jax
 
     if args.coordinator is None:

@@ -12,7 +12,7 @@ from pathlib import Path
 
 from .._files import publish
 from ._params import add_parameter_options, parameters, write_parameters
-from ._scale import add_scale_out_options, checkpoint_path, start_processes
+from ._scale import add_scale_out_options, as_command_line, checkpoint_path, start_processes
 from ._types import (
     criteria,
     csv_ints,
@@ -104,14 +104,27 @@ def _params(args):
     return pm.load_params(data), data
 
 
+def _checkpoints_written(base, since: float, resumed: bool, processes: int = 1) -> list:
+    """The Monte Carlo checkpoints this run wrote or resumed (each process's file of a distributed run, where
+    this folder holds it), for the output folder's manifest."""
+    if base is None:
+        return []
+    candidates = [base]
+    if processes > 1:
+        candidates = [base.with_name(f"{base.stem}.process-{p}-of-{processes}.npz") for p in range(processes)]
+    # 1 s of slack: a file system may store times more coarsely than time.time() reads them
+    return [p for p in candidates if p.is_file() and (resumed or p.stat().st_mtime >= since - 1.0)]
+
+
 def _run_planetary(args) -> int:
     import jax
 
-    from .._montecarlo import checkpoint_samples
+    from .._montecarlo import check_options, checkpoint_samples
     from ..studies import planetary as study
 
     if args.resume and not args.samples:
         raise ValueError("`--resume` continues a Monte Carlo; it needs `--samples` >= 2")
+    started = time.time()
     process = start_processes(args)  # before any JAX computation
     params, data = _params(args)
     if args.support_counts is not None and params.ring_model == "elastic":
@@ -133,8 +146,18 @@ def _run_planetary(args) -> int:
         checkpoint_every=args.checkpoint_every,
         resume=args.resume,
     )
+    if args.samples:  # before any work: the checkpoint's folder, and a checkpoint to resume of this very run
+        try:
+            check_options(
+                args.samples, args.chunk_size, study_kw["checkpoint"], args.resume, key=study_kw["key"]
+            )
+        except ValueError as err:
+            raise as_command_line(err) from None
     if process:  # another process of a distributed run: its share of the Monte Carlo, no output
-        study.run_study(params, progress=False, **study_kw)
+        try:
+            study.run_study(params, progress=False, **study_kw)
+        except ValueError as err:
+            raise as_command_line(err) from None
         return 0
     print(
         study.format_header(
@@ -160,12 +183,15 @@ def _run_planetary(args) -> int:
     step = lambda msg: print(f"[{time.perf_counter() - start:7.1f} s] {msg}", flush=True)  # noqa: E731
     resuming = ""
     if args.resume:
-        held = checkpoint_samples(study_kw["checkpoint"])  # None: no checkpoint, refused with a reason below
+        held = checkpoint_samples(study_kw["checkpoint"])
         if held is not None:
             of = f"{args.samples:,}" if jax.process_count() == 1 else "process 0's"
             resuming = f" (resuming: the checkpoint holds {held:,} of {of} samples)"
     step("SL + moment recursion" + (" and Monte Carlo" if args.samples else "") + resuming)
-    result = study.run_study(params, progress=not args.quiet, **study_kw)
+    try:
+        result = study.run_study(params, progress=not args.quiet, **study_kw)
+    except ValueError as err:
+        raise as_command_line(err) from None
     sweeps = None
     if not args.no_sweeps:
         sweeps = study.standard_sweeps(
@@ -181,8 +207,8 @@ def _run_planetary(args) -> int:
     step("modal analysis")
     modal = study.modal_table(params)
     sens = None if args.no_sensitivities else study.elastic_sensitivities(params, dt=args.dt, say=step)
-    checkpoint = (
-        [study_kw["checkpoint"]] if study_kw["checkpoint"] and study_kw["checkpoint"].is_file() else []
+    checkpoint = _checkpoints_written(
+        study_kw["checkpoint"], since=started, resumed=args.resume, processes=jax.process_count()
     )
     written = publish(
         out,

@@ -302,7 +302,7 @@ def evaluate(
             done[f].append(value.reshape((group,) + value.shape[2:]))
         if path is not None:
             so_far = {f: np.concatenate(done[f]) for f in fields}
-            save_checkpoint(path, dict(so_far, next_group=np.asarray(g + 1)), description)
+            save_checkpoint(path, dict(so_far, next_group=np.asarray(g + 1)), description, what="evaluate")
     return Terms(**{f: jnp.asarray(np.concatenate(done[f])[:n]) for f in fields})
 
 

@@ -182,7 +182,10 @@ def run_study(
             raise ValueError(
                 f"`n_samples` must be 0 (no Monte Carlo) or an integer >= 2, got {n_samples!r}"
             ) from None
-        check_monte_carlo_options(n_samples, chunk_size, checkpoint, resume)  # before SL: fail at once
+        key = jax.random.key(0) if key is None else key
+        check_monte_carlo_options(
+            n_samples, chunk_size, checkpoint, resume, key=key
+        )  # before SL: fail at once
     system, kw, mc_every, sl_every = _setup(p, dt, periods, n_saves, sl_refine)
     sl = {c: solve_moments(system, criterion=c, save_every=sl_every, **kw) for c in criteria}
     mc = None
@@ -190,7 +193,7 @@ def run_study(
         mc = monte_carlo(
             system,
             n_samples=n_samples,
-            key=jax.random.key(0) if key is None else key,
+            key=key,
             chunk_size=chunk_size,
             progress=progress,
             save_every=mc_every,
