@@ -42,26 +42,44 @@ def _code_bytes(code: types.CodeType) -> bytes:
 
 def _callable_bytes(fn, seen: frozenset) -> bytes:
     """A function as what it computes: its name and bytecode, and the values it carries (a partial's
-    arguments, defaults, closure cells, a bound method's object). Globals it reads are not included."""
-    if id(fn) in seen:  # a function reachable from its own closure
-        return b"<recursive>"
-    seen = seen | {id(fn)}
-    if isinstance(fn, functools.partial):
+    arguments, defaults, closure cells, a bound method's object, a wrapper's wrapped function). Globals it
+    reads are not included."""
+    if isinstance(fn, functools.partial):  # jax.tree_util.Partial too
         return b"partial:" + _callable_bytes(fn.func, seen) + _tree_bytes((fn.args, fn.keywords), seen)
     if inspect.ismethod(fn):
-        return b"method:" + _callable_bytes(fn.__func__, seen) + _tree_bytes(fn.__self__, seen)
+        return b"method:" + _callable_bytes(fn.__func__, seen) + _object_bytes(fn.__self__, seen)
     name = f"{getattr(fn, '__module__', '')}.{getattr(fn, '__qualname__', type(fn).__name__)}".encode()
     code = getattr(fn, "__code__", None)
-    if not isinstance(code, types.CodeType):  # a builtin or NumPy ufunc: its name says what it computes
-        return name if hasattr(fn, "__qualname__") else name + _ADDRESS.sub("", repr(fn)).encode()
-    cells = []
-    for cell in fn.__closure__ or ():
-        try:
-            cells.append(cell.cell_contents)
-        except ValueError:  # a cell not yet filled
-            cells.append(None)
-    carried = (fn.__defaults__, fn.__kwdefaults__, cells)
-    return name + _code_bytes(code) + _tree_bytes(carried, seen)
+    if isinstance(code, types.CodeType):
+        cells = []
+        for cell in fn.__closure__ or ():
+            try:
+                cells.append(cell.cell_contents)
+            except ValueError:  # a cell not yet filled
+                cells.append(None)
+        carried = (fn.__defaults__, fn.__kwdefaults__, cells)
+        return name + _code_bytes(code) + _tree_bytes(carried, seen)
+    wrapped = getattr(fn, "__wrapped__", None)  # jax.jit, functools.wraps
+    if wrapped is not None and wrapped is not fn:
+        return b"wrapper:" + name + _callable_bytes(wrapped, seen)
+    if isinstance(fn, types.BuiltinFunctionType | np.ufunc):  # its name says what it computes
+        return name
+    # an instance of a class with __call__: the method, and the instance's attributes
+    return b"instance:" + _callable_bytes(type(fn).__call__, seen) + _object_bytes(fn, seen)
+
+
+def _object_bytes(obj, seen: frozenset) -> bytes:
+    """An object that is not a pytree: its type and attributes, or its repr where it has none."""
+    kind = f"{type(obj).__module__}.{type(obj).__qualname__}".encode()
+    try:
+        attributes = getattr(obj, "__dict__", None)
+        if isinstance(attributes, dict) and not isinstance(obj, types.ModuleType):
+            return kind + _tree_bytes(attributes, seen)
+        if jax.tree.leaves(obj) != [obj]:  # a pytree after all (an equinox module's bound method's object)
+            return _tree_bytes(obj, seen)
+        return _ADDRESS.sub("", repr(obj)).encode()
+    except Exception:  # an object that cannot be read so: its type alone
+        return kind
 
 
 def _leaf_bytes(leaf, seen: frozenset = frozenset()) -> bytes:
@@ -69,14 +87,42 @@ def _leaf_bytes(leaf, seen: frozenset = frozenset()) -> bytes:
         leaf = jax.random.key_data(leaf)
     if isinstance(leaf, jax.Array | np.ndarray | np.generic | int | float | complex | bool):
         a = np.asarray(leaf)
-        return str(a.dtype).encode() + str(a.shape).encode() + np.ascontiguousarray(a).tobytes()
+        head = str(a.dtype).encode() + str(a.shape).encode()
+        if a.dtype == object:  # its bytes would be pointers
+            return head + b",".join(_leaf_bytes(x, seen) for x in a.ravel())
+        return head + np.ascontiguousarray(a).tobytes()
+    if isinstance(leaf, str | bytes | type(None)):
+        return repr(leaf).encode()
+    if isinstance(leaf, set | frozenset):  # sorted: their order follows the string hash seed
+        return b"{" + b",".join(sorted(_leaf_bytes(x, seen) for x in leaf)) + b"}"
+    if id(leaf) in seen:  # reachable from itself (a recursive closure, a cyclic object)
+        return b"<recursive>"
+    seen = seen | {id(leaf)}
     if callable(leaf) and not isinstance(leaf, type):
         return _callable_bytes(leaf, seen)
-    return _ADDRESS.sub("", repr(leaf)).encode()
+    return _object_bytes(leaf, seen)
+
+
+def _is_partial(x) -> bool:  # jax.tree_util.Partial keeps its function in the tree structure: take it whole
+    return isinstance(x, jax.tree_util.Partial)
+
+
+def _nests_itself(tree, path: frozenset = frozenset(), depth: int = 0) -> bool:
+    """Whether a list, tuple or dict contains itself (or nests deeper than any model does): JAX's flatten
+    would exhaust the stack, and jaxlib 0.10 then leaves Python's recursion count spent."""
+    if not isinstance(tree, list | tuple | dict):
+        return False
+    if id(tree) in path or depth > 100:
+        return True
+    path = path | {id(tree)}
+    children = tree.values() if isinstance(tree, dict) else tree
+    return any(_nests_itself(child, path, depth + 1) for child in children)
 
 
 def _tree_bytes(tree, seen: frozenset = frozenset()) -> bytes:
-    leaves, treedef = jax.tree.flatten(tree)
+    if _nests_itself(tree):
+        return f"<cyclic {type(tree).__qualname__}>".encode()
+    leaves, treedef = jax.tree.flatten(tree, is_leaf=_is_partial)
     out = [_ADDRESS.sub("", str(treedef)).encode()]  # no memory addresses
     out += [_leaf_bytes(leaf, seen) for leaf in leaves]
     return b"|".join(out)
@@ -92,9 +138,9 @@ def tree_digest(*trees) -> str:
     return h.hexdigest()[:24]
 
 
-def checkpoint_file(checkpoint, resume: bool) -> Path | None:
+def checkpoint_file(checkpoint, resume: bool, *, writable: bool = True) -> Path | None:
     """``checkpoint`` as a path (None for none), checked before any computation: a ``.npz`` name in an
-    existing folder; ``resume`` needs one."""
+    existing folder (one this process can write in, unless ``writable`` is False); ``resume`` needs one."""
     if checkpoint is None:
         if resume:
             raise ValueError("`resume=True` needs a `checkpoint` path to resume from")
@@ -112,6 +158,8 @@ def checkpoint_file(checkpoint, resume: bool) -> Path | None:
         raise ValueError(f"`checkpoint`: folder {str(path.parent)!r} does not exist")
     if path.is_dir():
         raise ValueError(f"`checkpoint` {str(path)!r} is a folder")
+    if not writable:
+        return path
     probe = path.with_name(f".{path.stem}.write-check-{os.getpid()}")
     try:  # a folder that cannot be written would otherwise fail at the first checkpoint, after a batch's work
         probe.write_bytes(b"")

@@ -11,11 +11,14 @@ import os
 import platform
 import shutil
 import sys
+import time
 from collections.abc import Callable
 from pathlib import Path
 
 
 def _pid_is_gone(pid: int) -> bool:
+    if os.name == "nt":  # there os.kill(pid, 0) would end the process: assume it lives
+        return False
     try:
         os.kill(pid, 0)  # raises if there is no such process
     except ProcessLookupError:
@@ -25,12 +28,21 @@ def _pid_is_gone(pid: int) -> bool:
     return False
 
 
+#: a temporary file untouched this long, of a process that no longer exists here, is debris: the age guards
+#: against a live writer on another host of a shared file system (or in another pid namespace)
+ABANDONED_AFTER_S = 3600.0
+
+
 def _remove_dead_partials(path: Path) -> None:
     """Remove the temporary files of earlier writes of ``path`` whose process was killed outright."""
     prefix = f".{path.stem}.partial-"
     for old in path.parent.glob(f"{prefix}*{path.suffix}"):
         pid = old.name[len(prefix) : len(old.name) - len(path.suffix)]
-        if pid.isdigit() and _pid_is_gone(int(pid)):
+        try:
+            stale = time.time() - old.stat().st_mtime > ABANDONED_AFTER_S
+        except OSError:  # gone meanwhile
+            continue
+        if stale and pid.isdigit() and _pid_is_gone(int(pid)):
             old.unlink(missing_ok=True)
 
 

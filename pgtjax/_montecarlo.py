@@ -319,9 +319,9 @@ class _Moments(NamedTuple):
         )
 
 
-def _checkpoint_path(checkpoint, resume: bool, n_proc: int, proc: int) -> Path | None:
+def _checkpoint_path(checkpoint, resume: bool, n_proc: int, proc: int, writable: bool = True) -> Path | None:
     """This process's checkpoint file, checked before any computation."""
-    path = checkpoint_file(checkpoint, resume)
+    path = checkpoint_file(checkpoint, resume, writable=writable)
     if path is not None and n_proc > 1:
         path = path.with_name(f"{path.stem}.process-{proc}-of-{n_proc}.npz")
     return path
@@ -332,7 +332,7 @@ def checkpoint_samples(checkpoint, *, distributed=True) -> int | None:
     share in a distributed run), or None where there is no readable pgtjax checkpoint (resuming says why)."""
     n_proc, proc = (jax.process_count(), jax.process_index()) if distributed else (1, 0)
     try:
-        path = _checkpoint_path(checkpoint, False, n_proc, proc)
+        path = _checkpoint_path(checkpoint, False, n_proc, proc, writable=False)
         with np.load(path, allow_pickle=False) as data:
             return int(data["count"]) if "__checkpoint__" in data.files else None
     except (OSError, KeyError, ValueError, zipfile.BadZipFile, EOFError):
@@ -361,22 +361,47 @@ def check_options(
         )
     if chunk_size is not None:  # None: the devices' default (default_chunk_size)
         check_count("chunk_size", chunk_size)
+    if key is not None:
+        check_key(key)
     n_proc, proc = (jax.process_count(), jax.process_index()) if distributed else (1, 0)
-    path = _checkpoint_path(checkpoint, resume, n_proc, proc)
-    if resume:
-        devices = local_devices(devices)
-        entries = dict(
-            n_samples=int(n_samples),
-            samples_per_device=_samples_per_device(n_samples, chunk_size, devices, n_proc),
-            devices=len(devices),
-            processes=n_proc,
-            process=proc,
-        )
-        if key is not None:
-            check_key(key)
-            entries["key"] = np.asarray(jax.random.key_data(key) if _is_typed_key(key) else key).tolist()
-        check_checkpoint(path, entries, what="monte_carlo")
+    devices = local_devices(devices)
+    per_device = _samples_per_device(n_samples, chunk_size, devices, n_proc)
+    if n_proc > 1:
+        _check_processes_agree(len(devices), per_device)
+    try:  # this process's own checks, which may fail in one process only (a node-local file)
+        path = _checkpoint_path(checkpoint, resume, n_proc, proc)
+        if resume:
+            entries = dict(
+                n_samples=int(n_samples),
+                samples_per_device=per_device,
+                devices=len(devices),
+                processes=n_proc,
+                process=proc,
+            )
+            if key is not None:
+                entries["key"] = np.asarray(jax.random.key_data(key) if _is_typed_key(key) else key).tolist()
+            check_checkpoint(path, entries, what="monte_carlo")
+        refusal = None
+    except ValueError as err:
+        refusal = err
+    if n_proc > 1:  # one process refusing stops them all, rather than leaving the others waiting for it
+        _refuse_together(refusal)
+    if refusal is not None:
+        raise refusal
     return path
+
+
+def _refuse_together(refusal: ValueError | None) -> None:
+    """In a distributed run, ``ValueError`` in every process where any process refused its options."""
+    from jax.experimental import multihost_utils
+
+    refused = np.asarray(multihost_utils.process_allgather(np.array([refusal is not None]))).reshape(-1)
+    others = [p for p in np.flatnonzero(refused) if p != jax.process_index()]
+    if refusal is None and others:
+        raise ValueError(
+            f"monte_carlo: process(es) {', '.join(map(str, others))} refused this run's options; "
+            "their messages say why"
+        )
 
 
 def _check_processes_agree(n_dev: int, per_device: int) -> None:
@@ -534,8 +559,6 @@ def monte_carlo(
     round_size = n_proc * n_dev * per_device
     n_rounds = -(-n_samples // round_size)
     checkpoint_every = check_count("checkpoint_every", checkpoint_every)
-    if n_proc > 1:
-        _check_processes_agree(n_dev, per_device)
     description = dict(
         # one entry per input, so that a refused resume names what differs (a changed seed shows as the key)
         system=tree_digest(system),

@@ -2,7 +2,7 @@
 two-process ``jax.distributed`` run, or a run that kills itself right after its second checkpoint.
 
 Usage: python3 _mc_worker.py sharded OUT
-       python3 _mc_worker.py process PROCESS_ID N_PROCESSES PORT OUT [CHUNK_SIZE]
+       python3 _mc_worker.py process PROCESS_ID N_PROCESSES PORT OUT [CHUNK_SIZE [CHECKPOINT_TO_RESUME]]
        python3 _mc_worker.py killed CHECKPOINT
        python3 _mc_worker.py killed-designs CHECKPOINT
        python3 _mc_worker.py cores N OUT
@@ -97,8 +97,9 @@ def main():
             f"127.0.0.1:{port}", num_processes=n_processes, process_id=process_id, initialization_timeout=120
         )
         chunk_size = int(sys.argv[6]) if len(sys.argv) > 6 else 40
+        resume = dict(checkpoint=sys.argv[7], resume=True) if len(sys.argv) > 7 else {}
         try:
-            result = run(chunk_size=chunk_size)
+            result = run(chunk_size=chunk_size, **resume)
         except ValueError as err:  # refused: say why, and leave the distributed runtime cleanly
             print(err, file=sys.stderr)
             jax.distributed.shutdown()

@@ -164,12 +164,12 @@ CASES = [
     (
         "checkpoint in a file",
         lambda d: ["planetary", "--checkpoint", str(_text(d, "x") / "ck.npz"), "--out", str(d / "o")],
-        "`--checkpoint`: ",
+        "is a file, not a folder",
     ),  # fmt: skip
     (
-        "checkpoint folder not writable",
-        lambda d: ["planetary", "--checkpoint", "/proc/ck.npz", "--out", str(d / "o")],
-        "`--checkpoint`: folder '/proc' cannot be written",
+        "coordinator IPv6 without brackets",
+        lambda d: ["planetary", "--coordinator", "fe80::1", "--processes", "2", "--process-id", "0"],
+        "an IPv6 host in brackets",
     ),  # fmt: skip
     (
         "optimize periods negative",

@@ -5,6 +5,7 @@ import functools
 import os
 import subprocess
 import sys
+import time
 
 import equinox as eqx
 import jax
@@ -13,7 +14,7 @@ import numpy as np
 import pytest
 
 from pgtjax._checkpoint import tree_digest
-from pgtjax._files import write_atomic
+from pgtjax._files import ABANDONED_AFTER_S, write_atomic
 from pgtjax.models import gear_pair as gp
 
 
@@ -49,9 +50,25 @@ def test_digest_sees_the_values_a_time_function_carries():
     )
     assert digest(_closure(2.0)) == digest(_closure(2.0))
     assert tree_digest(gp.build()) == tree_digest(gp.build())
+    # wrapped, or held by objects
+    assert digest(jax.jit(_closure(1.0))) != digest(jax.jit(_closure(3.0)))
+    assert digest(jax.tree_util.Partial(_closure(1.0))) != digest(jax.tree_util.Partial(_closure(3.0)))
+    assert digest(_Scaled(1.0)) != digest(_Scaled(3.0)) and digest(_Scaled(2.0)) == digest(_Scaled(2.0))
+    assert digest(_Scaled(1.0).load) != digest(_Scaled(3.0).load)
 
 
-def test_digest_of_a_recursive_closure_terminates():
+class _Scaled:  # a plain object whose method, or itself, is the time function
+    def __init__(self, scale):
+        self.scale = scale
+
+    def __call__(self, t):
+        return self.scale * jnp.sin(t)
+
+    def load(self, t):
+        return self.scale * jnp.sin(t)
+
+
+def test_digest_of_a_recursive_closure_or_a_cyclic_object_terminates():
     def outer():
         def f(n):
             return 1 if n <= 0 else f(n - 1)
@@ -59,15 +76,23 @@ def test_digest_of_a_recursive_closure_terminates():
         return f
 
     assert tree_digest(outer()) == tree_digest(outer())
+    cyclic = [1.0]
+    cyclic.append(cyclic)
+    assert tree_digest(_closure(cyclic)) == tree_digest(_closure(cyclic))
+    assert tree_digest(_closure([1.0, [2.0]])) != tree_digest(_closure([1.0, [3.0]]))
 
 
 def test_digest_is_the_same_in_another_process():
-    """Frozenset constants are ordered by the string hash seed; a multi-process run compares fingerprints."""
+    """A resumed run is a new process, with another string hash seed, which orders sets and frozensets: in
+    a function's constants or in what it carries."""
     code = (
         "import jax.numpy as jnp\n"
         "from pgtjax._checkpoint import tree_digest\n"
         "f = lambda x: x in {'alpha', 'beta', 'gamma', 'delta'}\n"
-        "print(tree_digest(f, jnp.arange(3.0)))\n"
+        "def carry(names):\n"
+        "    return lambda t: t if 'alpha' in names else -t\n"
+        "g = carry({'alpha', 'beta', 'gamma', 'delta', 'epsilon'})\n"
+        "print(tree_digest(f, g, jnp.arange(3.0)))\n"
     )
     outs = {
         subprocess.run(
@@ -93,17 +118,23 @@ def test_interrupted_write_leaves_the_previous_file_and_later_writes_clear_its_d
         write_atomic(target, dies)
     with np.load(target) as data:
         np.testing.assert_array_equal(data["x"], np.zeros(2))
-    # a process killed outright cannot clean up: its partial file stays until the next write
+    # a process killed outright cannot clean up: its partial file stays until a later write of the target
     dead = subprocess.Popen([sys.executable, "-c", "pass"])
     dead.wait()
-    debris = tmp_path / f".run.partial-{dead.pid}.npz"
-    debris.write_bytes(b"half")
-    alive = tmp_path / f".run.partial-{os.getppid()}.npz"  # a live process's write is left alone
-    alive.write_bytes(b"in progress")
-    other = tmp_path / f".other.partial-{dead.pid}.npz"  # another target's is not this write's to judge
-    other.write_bytes(b"half")
+    hours_ago = time.time() - 2 * ABANDONED_AFTER_S
+
+    def left(name, age=hours_ago):
+        path = tmp_path / name
+        path.write_bytes(b"half")
+        os.utime(path, (age, age))
+        return path
+
+    debris = left(f".run.partial-{dead.pid}.npz")
+    alive = left(f".run.partial-{os.getppid()}.npz")  # a live process's write is left alone
+    recent = left(f".run.partial-{dead.pid}0.npz", age=time.time())  # maybe another host's: too recent
+    other = left(f".other.partial-{dead.pid}.npz")  # another target's is not this write's to judge
     write_atomic(target, lambda p: np.savez(p, x=np.ones(2)))
-    assert not debris.exists() and alive.exists() and other.exists()
+    assert not debris.exists() and alive.exists() and recent.exists() and other.exists()
     with np.load(target) as data:
         np.testing.assert_array_equal(data["x"], np.ones(2))
     assert jax.numpy.asarray(1.0).dtype == jnp.float64

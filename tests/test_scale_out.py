@@ -146,6 +146,21 @@ def test_processes_that_would_split_the_samples_differently_are_refused(tmp_path
     assert not list(tmp_path.iterdir())
 
 
+def test_one_process_refusing_its_options_stops_every_process(tmp_path):
+    """A resume where one node lacks its checkpoint file: that process refuses, and the other stops too
+    instead of waiting for it at the end of the run."""
+    from pgtjax._checkpoint import save_checkpoint
+
+    checkpoint = tmp_path / "mc.npz"
+    ours = dict(n_samples=203, samples_per_device=40, devices=1, processes=2, process=0, key=[0, 17])
+    save_checkpoint(tmp_path / "mc.process-0-of-2.npz", {"count": 0.0}, ours, what="monte_carlo")
+    port = _free_port()
+    procs = [_worker("process", p, 2, port, tmp_path / f"p{p}.npz", 40, checkpoint) for p in range(2)]
+    (code0, err0), (code1, err1) = [_finish(p) for p in procs]
+    assert code1 == 3 and "no checkpoint at" in err1 and "mc.process-1-of-2.npz" in err1, err1
+    assert code0 == 3 and "process(es) 1 refused this run's options" in err0, err0
+
+
 def test_killed_after_second_checkpoint_resumes_to_the_uninterrupted_run(tmp_path):
     checkpoint = tmp_path / "mc.npz"
     code, err = _finish(_worker("killed", checkpoint))

@@ -4,6 +4,7 @@ interruptions: checkpoints, resume, and JAX's distributed runtime."""
 from __future__ import annotations
 
 import argparse
+import re
 from pathlib import Path
 
 from ._types import positive_int
@@ -66,9 +67,11 @@ def as_command_line(err: ValueError) -> ValueError:
 
 def _check_coordinator(address: str) -> None:
     host, _, port = address.rpartition(":")
-    if not host or not port.isdigit() or not 1 <= int(port) <= 65535:
+    ipv6_unbracketed = ":" in host and not (host.startswith("[") and host.endswith("]"))
+    if not host or ipv6_unbracketed or not re.fullmatch(r"[0-9]{1,5}", port) or not 1 <= int(port) <= 65535:
         raise ValueError(
-            f"`--coordinator` must be HOST:PORT with a port from 1 to 65535 (e.g. 127.0.0.1:12355), got {address!r}"
+            "`--coordinator` must be HOST:PORT with a port from 1 to 65535, an IPv6 host in brackets "
+            f"(e.g. 127.0.0.1:12355 or [::1]:12355), got {address!r}"
         )
 
 
