@@ -21,7 +21,7 @@ def _pid_is_gone(pid: int) -> bool:
         return False
     try:
         os.kill(pid, 0)  # raises if there is no such process
-    except ProcessLookupError:
+    except (ProcessLookupError, OverflowError):  # no such process (none has a number beyond a C long)
         return True
     except OSError:  # another user's process, or a platform without signals: assume it lives
         return False

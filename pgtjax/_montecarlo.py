@@ -339,6 +339,11 @@ def checkpoint_samples(checkpoint, *, distributed=True) -> int | None:
         return None
 
 
+def _recorded_key(key) -> list[int]:
+    """The key as a checkpoint's description records it (its data words)."""
+    return np.asarray(jax.random.key_data(key) if _is_typed_key(key) else key).tolist()
+
+
 def _samples_per_device(n_samples: int, chunk_size, devices: list, n_proc: int) -> int:
     """Samples per device and round: ``chunk_size`` (the devices' default where None), fewer where the run is
     smaller than one round."""
@@ -379,7 +384,7 @@ def check_options(
                 process=proc,
             )
             if key is not None:
-                entries["key"] = np.asarray(jax.random.key_data(key) if _is_typed_key(key) else key).tolist()
+                entries["key"] = _recorded_key(key)
             check_checkpoint(path, entries, what="monte_carlo")
         refusal = None
     except ValueError as err:
@@ -562,7 +567,7 @@ def monte_carlo(
     description = dict(
         # one entry per input, so that a refused resume names what differs (a changed seed shows as the key)
         system=tree_digest(system),
-        key=np.asarray(jax.random.key_data(key) if _is_typed_key(key) else key).tolist(),
+        key=_recorded_key(key),
         initial_state=tree_digest(u0, v0, init_factor),
         observables=tree_digest(observables),
         histogram_edges=tree_digest(hist_edges),

@@ -133,8 +133,10 @@ def test_interrupted_write_leaves_the_previous_file_and_later_writes_clear_its_d
     alive = left(f".run.partial-{os.getppid()}.npz")  # a live process's write is left alone
     recent = left(f".run.partial-{dead.pid}0.npz", age=time.time())  # maybe another host's: too recent
     other = left(f".other.partial-{dead.pid}.npz")  # another target's is not this write's to judge
+    absurd = left(f".run.partial-{10**30}.npz")  # no process has such a number
     write_atomic(target, lambda p: np.savez(p, x=np.ones(2)))
-    assert not debris.exists() and alive.exists() and recent.exists() and other.exists()
+    assert not debris.exists() and not absurd.exists()
+    assert alive.exists() and recent.exists() and other.exists()
     with np.load(target) as data:
         np.testing.assert_array_equal(data["x"], np.ones(2))
     assert jax.numpy.asarray(1.0).dtype == jnp.float64

@@ -389,7 +389,7 @@ def test_output_manifest_lists_every_process_checkpoint_this_run_wrote(tmp_path)
     the folder, and not one an earlier run left there."""
     import time
 
-    from pgtjax.cli.planetary import _checkpoints_written
+    from pgtjax.cli._scale import checkpoints_of_run as _checkpoints_written
 
     base = tmp_path / "monte_carlo.checkpoint.npz"
     old = tmp_path / "monte_carlo.checkpoint.process-0-of-3.npz"
@@ -402,7 +402,9 @@ def test_output_manifest_lists_every_process_checkpoint_this_run_wrote(tmp_path)
     assert _checkpoints_written(base, since=started, resumed=False, processes=2) == ours
     assert _checkpoints_written(base, since=started, resumed=False, processes=3) == []  # all older or missing
     assert _checkpoints_written(base, since=started, resumed=True, processes=3) == [old]  # resumed: older too
-    assert _checkpoints_written(base, since=started, resumed=False) == []  # one process: its own file only
+    assert _checkpoints_written(base, since=started, resumed=False, processes=1) == []  # its own file only
     base.write_bytes(b"this run")
-    assert _checkpoints_written(base, since=started, resumed=False) == [base]
+    assert _checkpoints_written(base, since=started, resumed=False, processes=1) == [base]
+    # any process count (the interrupt message, before JAX says how many): this run's files of every kind
+    assert _checkpoints_written(base, since=started, resumed=False) == [base, *ours]
     assert _checkpoints_written(None, since=started, resumed=False) == []

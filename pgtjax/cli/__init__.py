@@ -24,7 +24,7 @@ from .._failure import SolverError
 from .._files import interrupted_message
 from .._parallel import lapack_batches_wait_on_pool, use_cpu_cores
 from . import back_to_back, design, gear_pair, planetary, ring
-from ._scale import checkpoint_path
+from ._scale import checkpoint_path, checkpoints_of_run
 from ._types import positive_int
 
 __all__ = ["build_parser", "main"]
@@ -105,13 +105,14 @@ def _resume_files(args, started: float) -> list[Path]:
     (one per process in a distributed run) or its optimization history, if this run wrote them or resumed
     from them (a checkpoint older than the run, left by an earlier one, is not this run's)."""
     if hasattr(args, "checkpoint"):  # the Monte Carlo commands
-        base = checkpoint_path(args, Path(args.out))
-        candidates = [base, *sorted(base.parent.glob(f"{base.stem}.process-*-of-*.npz"))]
-    else:  # optimize
-        candidates = [Path(args.out) / "history.json"]
+        return checkpoints_of_run(checkpoint_path(args, Path(args.out)), started, bool(args.resume))
+    history = Path(args.out) / "history.json"  # optimize
     try:
-        # 1 s of slack: a file system may store times more coarsely than time.time() reads them
-        return [p for p in candidates if p.is_file() and (args.resume or p.stat().st_mtime >= started - 1.0)]
+        return (
+            [history]
+            if history.is_file() and (args.resume or history.stat().st_mtime >= started - 1.0)
+            else []
+        )
     except OSError:
         return []
 

@@ -46,6 +46,25 @@ def checkpoint_path(args, out: Path) -> Path:
     return args.checkpoint if args.checkpoint is not None else out / CHECKPOINT_NAME
 
 
+def checkpoints_of_run(base: Path | None, since: float, resumed: bool, processes: int | None = None) -> list:
+    """The Monte Carlo checkpoints a run wrote or resumed: ``base``, or each process's file of a distributed
+    run of ``processes`` (None: any process count found beside ``base``), where this folder holds them. A file
+    older than the run (``since``, time.time()) is an earlier run's, unless this run resumed it."""
+    if base is None:
+        return []
+    if processes is None:
+        candidates = [base, *sorted(base.parent.glob(f"{base.stem}.process-*-of-*.npz"))]
+    elif processes > 1:
+        candidates = [base.with_name(f"{base.stem}.process-{p}-of-{processes}.npz") for p in range(processes)]
+    else:
+        candidates = [base]
+    try:
+        # 1 s of slack: a file system may store times more coarsely than time.time() reads them
+        return [p for p in candidates if p.is_file() and (resumed or p.stat().st_mtime >= since - 1.0)]
+    except OSError:
+        return []
+
+
 #: the Python names of Monte Carlo's options as the command line spells them, for messages raised below it
 _OPTION_NAMES = {
     "`checkpoint`": "`--checkpoint`",

@@ -12,7 +12,13 @@ from pathlib import Path
 
 from .._files import publish
 from ._params import add_parameter_options, parameters, write_parameters
-from ._scale import add_scale_out_options, as_command_line, checkpoint_path, start_processes
+from ._scale import (
+    add_scale_out_options,
+    as_command_line,
+    checkpoint_path,
+    checkpoints_of_run,
+    start_processes,
+)
 from ._types import (
     criteria,
     csv_ints,
@@ -102,18 +108,6 @@ def _params(args):
 
     data = parameters(args, "planetary", {"ring_model": args.ring_model, "ring.n_elements": args.elements})
     return pm.load_params(data), data
-
-
-def _checkpoints_written(base, since: float, resumed: bool, processes: int = 1) -> list:
-    """The Monte Carlo checkpoints this run wrote or resumed (each process's file of a distributed run, where
-    this folder holds it), for the output folder's manifest."""
-    if base is None:
-        return []
-    candidates = [base]
-    if processes > 1:
-        candidates = [base.with_name(f"{base.stem}.process-{p}-of-{processes}.npz") for p in range(processes)]
-    # 1 s of slack: a file system may store times more coarsely than time.time() reads them
-    return [p for p in candidates if p.is_file() and (resumed or p.stat().st_mtime >= since - 1.0)]
 
 
 def _run_planetary(args) -> int:
@@ -207,7 +201,7 @@ def _run_planetary(args) -> int:
     step("modal analysis")
     modal = study.modal_table(params)
     sens = None if args.no_sensitivities else study.elastic_sensitivities(params, dt=args.dt, say=step)
-    checkpoint = _checkpoints_written(
+    checkpoint = checkpoints_of_run(
         study_kw["checkpoint"], since=started, resumed=args.resume, processes=jax.process_count()
     )
     written = publish(
