@@ -171,6 +171,20 @@ def checkpoint_file(checkpoint, resume: bool, *, writable: bool = True) -> Path 
     return path
 
 
+def process_checkpoint_name(path: Path, process: int, processes: int) -> Path:
+    """The checkpoint of process ``process`` of a run of ``processes`` (``<stem>.process-<p>-of-<n>.npz``; the
+    path itself for one process): processes sharing a folder must not write one file."""
+    return path if processes == 1 else path.with_name(f"{path.stem}.process-{process}-of-{processes}.npz")
+
+
+def process_checkpoint_file(
+    checkpoint, resume: bool, processes: int, process: int, *, writable: bool = True
+) -> Path | None:
+    """:func:`checkpoint_file`, then this process's own file (:func:`process_checkpoint_name`)."""
+    path = checkpoint_file(checkpoint, resume, writable=writable)
+    return None if path is None else process_checkpoint_name(path, process, processes)
+
+
 def save_checkpoint(path, arrays: dict[str, np.ndarray], description: dict, *, what: str) -> Path:
     """Write ``arrays`` and the ``description`` (JSON-able) of a run of ``what`` (the function checkpointed)
     to ``path`` (``.npz``) atomically."""

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import zipfile
 from collections.abc import Mapping, Sequence
-from pathlib import Path
 from typing import NamedTuple
 
 import equinox as eqx
@@ -26,7 +25,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._checkpoint import check_checkpoint, checkpoint_file, load_checkpoint, save_checkpoint, tree_digest
+from ._checkpoint import (
+    check_checkpoint,
+    load_checkpoint,
+    process_checkpoint_file,
+    save_checkpoint,
+    tree_digest,
+)
 from ._eigenbasis import eigen_initial_state, eigen_propagator, eigen_recorded, eigen_sample_step
 from ._failure import SolverError, raise_if_nonfinite
 from ._loop import saved_scan
@@ -319,20 +324,12 @@ class _Moments(NamedTuple):
         )
 
 
-def _checkpoint_path(checkpoint, resume: bool, n_proc: int, proc: int, writable: bool = True) -> Path | None:
-    """This process's checkpoint file, checked before any computation."""
-    path = checkpoint_file(checkpoint, resume, writable=writable)
-    if path is not None and n_proc > 1:
-        path = path.with_name(f"{path.stem}.process-{proc}-of-{n_proc}.npz")
-    return path
-
-
 def checkpoint_samples(checkpoint, *, distributed=True) -> int | None:
     """The number of samples whose statistics the Monte Carlo checkpoint ``checkpoint`` holds (this process's
     share in a distributed run), or None where there is no readable pgtjax checkpoint (resuming says why)."""
     n_proc, proc = (jax.process_count(), jax.process_index()) if distributed else (1, 0)
     try:
-        path = _checkpoint_path(checkpoint, False, n_proc, proc, writable=False)
+        path = process_checkpoint_file(checkpoint, False, n_proc, proc, writable=False)
         with np.load(path, allow_pickle=False) as data:
             return int(data["count"]) if "__checkpoint__" in data.files else None
     except (OSError, KeyError, ValueError, zipfile.BadZipFile, EOFError):
@@ -352,7 +349,15 @@ def _samples_per_device(n_samples: int, chunk_size, devices: list, n_proc: int) 
 
 
 def check_options(
-    n_samples, chunk_size, checkpoint=None, resume: bool = False, *, key=None, devices=None, distributed=True
+    n_samples,
+    chunk_size,
+    checkpoint=None,
+    resume: bool = False,
+    *,
+    key=None,
+    devices=None,
+    distributed=True,
+    checkpoint_every=1,
 ):
     """The sizes and checkpoint options of :func:`monte_carlo`, checked before any computation (a study calls
     this before its other work, so that a bad option fails at once). With ``resume``, a checkpoint of another
@@ -366,6 +371,7 @@ def check_options(
         )
     if chunk_size is not None:  # None: the devices' default (default_chunk_size)
         check_count("chunk_size", chunk_size)
+    check_count("checkpoint_every", checkpoint_every)
     if key is not None:
         check_key(key)
     n_proc, proc = (jax.process_count(), jax.process_index()) if distributed else (1, 0)
@@ -374,7 +380,7 @@ def check_options(
     if n_proc > 1:
         _check_processes_agree(len(devices), per_device)
     try:  # this process's own checks, which may fail in one process only (a node-local file)
-        path = _checkpoint_path(checkpoint, resume, n_proc, proc)
+        path = process_checkpoint_file(checkpoint, resume, n_proc, proc)
         if resume:
             entries = dict(
                 n_samples=int(n_samples),
@@ -510,7 +516,14 @@ def monte_carlo(
     check_stability(system, t0, horizon=n_steps * float(dt))
     integrator = resolve_integrator(integrator, noise_scheme)
     checkpoint = check_options(
-        n_samples, chunk_size, checkpoint, resume, key=key, devices=devices, distributed=distributed
+        n_samples,
+        chunk_size,
+        checkpoint,
+        resume,
+        key=key,
+        devices=devices,
+        distributed=distributed,
+        checkpoint_every=checkpoint_every,
     )
     if propagation not in PROPAGATIONS:
         raise ValueError(f"`propagation` must be one of {PROPAGATIONS}, got {propagation!r}")
@@ -563,7 +576,7 @@ def monte_carlo(
     per_device = _samples_per_device(n_samples, chunk_size, devices, n_proc)
     round_size = n_proc * n_dev * per_device
     n_rounds = -(-n_samples // round_size)
-    checkpoint_every = check_count("checkpoint_every", checkpoint_every)
+    checkpoint_every = int(checkpoint_every)
     description = dict(
         # one entry per input, so that a refused resume names what differs (a changed seed shows as the key)
         system=tree_digest(system),

@@ -729,3 +729,20 @@ def test_reasonable_inputs_are_not_refused():
     mc(key=np.asarray(jax.random.PRNGKey(0)))
     pg.symmetric_eigen(np.array([[1.0, 1e-30], [0.0, 1.0]]), K2)
     pg.Observables(np.eye(2), names=(f"y{i}" for i in range(2)))
+
+
+def test_planetary_study_refuses_bad_monte_carlo_options_before_sl(monkeypatch):
+    """A study's Monte Carlo options are checked before its SL runs, which takes minutes at full size."""
+    from pgtjax.studies import planetary as study
+
+    def no_sl(*args, **kwargs):
+        raise AssertionError("SL ran before the Monte Carlo options were checked")
+
+    monkeypatch.setattr(study, "solve_moments", no_sl)
+    for options, named in (
+        (dict(checkpoint_every=0), "`checkpoint_every`"),
+        (dict(chunk_size=0), "`chunk_size`"),
+        (dict(n_samples=1), "`n_samples`"),
+    ):
+        with pytest.raises(ValueError, match=named):
+            study.run_study(**{"n_samples": 4, "periods": 0.01, "progress": False, **options})

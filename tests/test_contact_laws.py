@@ -113,7 +113,12 @@ def test_contract_gaussian_statistics_match_adaptive_quadrature(name, regime):
     lin_e = law.linearize(mu, sigma, inputs, b, "energy")
     mean, std = law.force_moments(mu, sigma, inputs, b)
     for j in range(2):
-        one = lambda fun, x, j=j: float(fun(jnp.array([x, x]), inputs, b)[j])  # noqa: E731
+        # compiled once per law function: quadrature evaluates it thousands of times, op by op otherwise
+        compiled = {
+            name: jax.jit(lambda x, fun=getattr(law, name), j=j: fun(jnp.stack([x, x]), inputs, b)[j])
+            for name in ("force", "stiffness", "potential")
+        }
+        one = lambda fun, x: float(compiled[fun.__name__](jnp.float64(x)))  # noqa: E731
         m, s = float(mu[j]), float(sigma[j])
         pdf = lambda x, m=m, s=s: np.exp(-0.5 * ((x - m) / s) ** 2) / (s * np.sqrt(2 * np.pi))  # noqa: E731
         lo, hi = m - 12 * s, m + 12 * s

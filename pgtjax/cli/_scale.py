@@ -52,12 +52,12 @@ def checkpoints_of_run(base: Path | None, since: float, resumed: bool, processes
     older than the run (``since``, time.time()) is an earlier run's, unless this run resumed it."""
     if base is None:
         return []
+    from .._checkpoint import process_checkpoint_name  # here: the parser itself does not import JAX
+
     if processes is None:
         candidates = [base, *sorted(base.parent.glob(f"{base.stem}.process-*-of-*.npz"))]
-    elif processes > 1:
-        candidates = [base.with_name(f"{base.stem}.process-{p}-of-{processes}.npz") for p in range(processes)]
     else:
-        candidates = [base]
+        candidates = [process_checkpoint_name(base, p, processes) for p in range(processes)]
     try:
         # 1 s of slack: a file system may store times more coarsely than time.time() reads them
         return [p for p in candidates if p.is_file() and (resumed or p.stat().st_mtime >= since - 1.0)]

@@ -11,7 +11,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._checkpoint import checkpoint_file, load_checkpoint, save_checkpoint, tree_digest
+from .._checkpoint import load_checkpoint, process_checkpoint_file, save_checkpoint, tree_digest
 from .._deterministic import static_equilibrium
 from .._failure import SolverError
 from .._linearization import solve_moments
@@ -258,8 +258,10 @@ def evaluate(
     ``vmap`` of 14 planetary designs deadlocked inside XLA's CPU runtime in two of seven runs, so batching is
     opt-in: jaxlib 0.10.0-0.11.0 wait on their own thread pool in batched LAPACK calls, and warn here;
     docs/performance.md). ``group_size``: designs per device per compiled call (default: all at once, or 1 with a
-    checkpoint). ``checkpoint``: a ``.npz`` rewritten atomically after every group with the terms so far;
-    ``resume=True`` continues from it (same problem, designs and split required)."""
+    checkpoint). ``checkpoint``: a ``.npz`` rewritten atomically after every group with the terms so far
+    (``<stem>.process-<p>-of-<n>.npz`` in each process of a distributed run: each evaluates every design on
+    its own devices); ``resume=True`` continues from it (same problem, designs, split and ``batch_size``
+    required)."""
     zs = np.asarray(designs, dtype=np.float64)
     if zs.ndim != 2 or zs.shape[1] != problem.space.n or zs.shape[0] < 1:
         raise ValueError(f"`designs` must have shape (n_designs >= 1, {problem.space.n}), got {zs.shape}")
@@ -271,7 +273,8 @@ def evaluate(
             warn_if_lapack_batches_can_hang(f"designs vmap-ed {batch_size} at a time", stacklevel=3)
     devices = local_devices(devices)
     n, n_dev = zs.shape[0], len(devices)
-    path = checkpoint_file(checkpoint, resume)
+    # every process of a distributed run evaluates all designs on its own devices, into its own checkpoint
+    path = process_checkpoint_file(checkpoint, resume, jax.process_count(), jax.process_index())
     if group_size is not None:
         per_device = min(check_count("group_size", group_size), -(-n // n_dev))
     else:
@@ -285,6 +288,7 @@ def evaluate(
         n_designs=n,
         devices=n_dev,
         designs_per_device=per_device,
+        batch_size=batch_size,  # vmap-ed or one by one: equal to rounding, not digit for digit
     )
     fields = Terms.__dataclass_fields__
     done: dict[str, list] = {f: [] for f in fields}

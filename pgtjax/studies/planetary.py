@@ -183,9 +183,9 @@ def run_study(
                 f"`n_samples` must be 0 (no Monte Carlo) or an integer >= 2, got {n_samples!r}"
             ) from None
         key = jax.random.key(0) if key is None else key
-        check_monte_carlo_options(
-            n_samples, chunk_size, checkpoint, resume, key=key
-        )  # before SL: fail at once
+        check_monte_carlo_options(  # before SL: fail at once
+            n_samples, chunk_size, checkpoint, resume, key=key, checkpoint_every=checkpoint_every
+        )
     system, kw, mc_every, sl_every = _setup(p, dt, periods, n_saves, sl_refine)
     sl = {c: solve_moments(system, criterion=c, save_every=sl_every, **kw) for c in criteria}
     mc = None
