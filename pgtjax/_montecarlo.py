@@ -44,7 +44,7 @@ from ._newmark import (
     sample_step,
     snapshot,
 )
-from ._parallel import default_chunk_size, device_mesh, local_devices
+from ._parallel import default_chunk_size, device_mesh, gather_processes, local_devices, refuse_together
 from ._random import block_normals
 from ._random import normal as standard_normal
 from ._random import stream as normals_stream
@@ -396,32 +396,16 @@ def check_options(
     except ValueError as err:
         refusal = err
     if n_proc > 1:  # one process refusing stops them all, rather than leaving the others waiting for it
-        _refuse_together(refusal)
+        refuse_together(refusal, "monte_carlo")
     if refusal is not None:
         raise refusal
     return path
 
 
-def _refuse_together(refusal: ValueError | None) -> None:
-    """In a distributed run, ``ValueError`` in every process where any process refused its options."""
-    from jax.experimental import multihost_utils
-
-    refused = np.asarray(multihost_utils.process_allgather(np.array([refusal is not None]))).reshape(-1)
-    others = [p for p in np.flatnonzero(refused) if p != jax.process_index()]
-    if refusal is None and others:
-        raise ValueError(
-            f"monte_carlo: process(es) {', '.join(map(str, others))} refused this run's options; "
-            "their messages say why"
-        )
-
-
 def _check_processes_agree(n_dev: int, per_device: int) -> None:
     """Every process must split the samples alike: each one computes the sample ids of every process's rows
     from its own device count and batch size, so a mismatch would skip or repeat samples."""
-    from jax.experimental import multihost_utils
-
-    sizes = np.asarray(multihost_utils.process_allgather(np.array([n_dev, per_device], dtype=np.int64)))
-    sizes = sizes.reshape(jax.process_count(), 2)
+    sizes = gather_processes(np.array([n_dev, per_device], dtype=np.int64))
     if np.any(sizes != sizes[0]):
         listed = "; ".join(
             f"process {p}: {d} device(s), {b} samples per device" for p, (d, b) in enumerate(sizes)

@@ -144,3 +144,23 @@ def _backends_started() -> bool:
             return False
         except RuntimeError:
             return True
+
+
+def gather_processes(array: np.ndarray) -> np.ndarray:
+    """Every process's ``array`` (the same shape in each), stacked in process order: (n_processes, ...)."""
+    from jax.experimental import multihost_utils
+
+    gathered = np.asarray(multihost_utils.process_allgather(np.asarray(array)))
+    return gathered.reshape((jax.process_count(),) + np.shape(array))
+
+
+def refuse_together(refusal: ValueError | None, what: str) -> None:
+    """In a distributed run of ``what``, ``ValueError`` in every process where any process refused its options
+    (the others would otherwise wait for it at the end)."""
+    refused = gather_processes(np.array([refusal is not None])).reshape(-1)
+    others = [p for p in np.flatnonzero(refused) if p != jax.process_index()]
+    if refusal is None and others:
+        raise ValueError(
+            f"{what}: process(es) {', '.join(map(str, others))} refused this run's options; "
+            "their messages say why"
+        )

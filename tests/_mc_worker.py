@@ -1,8 +1,9 @@
 """A Monte Carlo run in a process of its own, for tests/test_scale_out.py: forced host devices, one process of a
-two-process ``jax.distributed`` run, or a run that kills itself right after its second checkpoint.
+two-process ``jax.distributed`` run (a design batch too), or a run that kills itself right after its second checkpoint.
 
 Usage: python3 _mc_worker.py sharded OUT
        python3 _mc_worker.py process PROCESS_ID N_PROCESSES PORT OUT [CHUNK_SIZE [CHECKPOINT_TO_RESUME]]
+       python3 _mc_worker.py designs-differ PROCESS_ID PORT
        python3 _mc_worker.py killed CHECKPOINT
        python3 _mc_worker.py killed-designs CHECKPOINT
        python3 _mc_worker.py cores N OUT
@@ -29,6 +30,7 @@ from pgtjax import design as pd  # noqa: E402
 from pgtjax.models import gear_pair  # noqa: E402
 
 DESIGNS = np.array([[0.0, 0.0], [0.5, -0.3], [-1.0, 1.2], [0.2, 0.9], [1.1, -0.7]])  # chain_problem's z
+DESIGN_FIELDS = ("value", "response", "costs", "converged")
 FIELDS = (
     "mean_u",
     "std_u",
@@ -104,8 +106,26 @@ def main():
             print(err, file=sys.stderr)
             jax.distributed.shutdown()
             sys.exit(3)
-        np.savez(out, **arrays(result))
+        from test_design import chain_problem
+
+        # the five designs split 3 + 2 over the processes, every design's terms gathered in each
+        checkpoint = os.path.join(os.path.dirname(out), "designs.npz")  # each process writes its own file
+        designs = pd.evaluate(chain_problem(0.01), DESIGNS, checkpoint=checkpoint)
+        np.savez(
+            out, **arrays(result), **{f"designs_{f}": np.asarray(getattr(designs, f)) for f in DESIGN_FIELDS}
+        )
         jax.distributed.shutdown()
+    elif mode == "designs-differ":  # process p is given the first 4 + p designs: both must refuse
+        process_id, port = int(sys.argv[2]), sys.argv[3]
+        jax.distributed.initialize(f"127.0.0.1:{port}", num_processes=2, process_id=process_id)
+        from test_design import chain_problem
+
+        try:
+            pd.evaluate(chain_problem(0.01), DESIGNS[: 4 + process_id])
+        except ValueError as err:
+            print(err, file=sys.stderr)
+            jax.distributed.shutdown()
+            sys.exit(3)
     elif mode in ("killed", "killed-designs"):
         module = montecarlo_module if mode == "killed" else design_problem_module
         save = module.save_checkpoint

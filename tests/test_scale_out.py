@@ -13,7 +13,7 @@ from pathlib import Path
 import jax
 import numpy as np
 import pytest
-from _mc_worker import DESIGNS, FIELDS, arrays, run
+from _mc_worker import DESIGN_FIELDS, DESIGNS, FIELDS, arrays, run
 from test_design import chain_problem
 
 from pgtjax import design as pd
@@ -130,8 +130,19 @@ def test_two_processes_equal_one_process(tmp_path, reference):
     results = [_finish(p) for p in procs]
     for code, err in results:
         assert code == 0, err
+    designs = pd.evaluate(chain_problem(0.01), DESIGNS)  # one process evaluates all five
     for p in range(2):  # every process holds the merged statistics of all 203 samples
-        _assert_same(dict(np.load(tmp_path / f"p{p}.npz")), reference, 1e-12)
+        got = dict(np.load(tmp_path / f"p{p}.npz"))
+        _assert_same(got, reference, 1e-12)
+        for f in DESIGN_FIELDS:  # and the terms of every design, 3 evaluated by process 0, 2 by process 1
+            want = np.asarray(getattr(designs, f))
+            assert got[f"designs_{f}"].shape == want.shape and got[f"designs_{f}"].dtype == want.dtype, f
+            np.testing.assert_allclose(got[f"designs_{f}"], want, rtol=1e-12, err_msg=f)
+    shares = sorted(p.name for p in tmp_path.glob("designs*"))  # each process checkpointed its own share
+    assert shares == ["designs.process-0-of-2.npz", "designs.process-1-of-2.npz"], shares
+    for p, rows in ((0, [0, 1, 2]), (1, [3, 4, 4])):  # equal shares: the last design repeated to fill
+        with np.load(tmp_path / shares[p]) as saved:
+            np.testing.assert_allclose(saved["value"], np.asarray(designs.value)[rows], rtol=1e-12)
 
 
 def test_processes_that_would_split_the_samples_differently_are_refused(tmp_path):
@@ -146,6 +157,15 @@ def test_processes_that_would_split_the_samples_differently_are_refused(tmp_path
         assert "must have the same number of devices and `chunk_size`" in err
         assert "process 0: 1 device(s), 40 samples per device; process 1: 1 device(s), 30 samples" in err
     assert not list(tmp_path.iterdir())
+
+
+def test_processes_given_different_designs_are_refused():
+    """A design batch is split by position: processes holding different designs would mix two batches."""
+    port = _free_port()
+    procs = [_worker("designs-differ", p, port) for p in range(2)]
+    for code, err in [_finish(p) for p in procs]:
+        assert code == 3, err
+        assert "must be given the same `designs` (process 0: 4 designs; process 1: 5 designs" in err, err
 
 
 def test_one_process_refusing_its_options_stops_every_process(tmp_path):
@@ -194,17 +214,6 @@ def test_design_batch_killed_after_second_checkpoint_resumes(tmp_path):
         pd.evaluate(problem, DESIGNS[:4], checkpoint=checkpoint, resume=True)
     with pytest.raises(ValueError, match="batch_size: checkpoint None, this run 1"):  # vmap-ed: other digits
         pd.evaluate(problem, DESIGNS, checkpoint=checkpoint, resume=True, batch_size=1)
-
-
-def test_design_batch_checkpoint_is_each_process_own(tmp_path, monkeypatch):
-    """In a distributed run every process evaluates all designs: each writes and resumes its own file."""
-    problem = chain_problem(0.01)
-    monkeypatch.setattr(jax, "process_count", lambda: 2)
-    monkeypatch.setattr(jax, "process_index", lambda: 1)
-    got = pd.evaluate(problem, DESIGNS[:2], checkpoint=tmp_path / "designs.npz")
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["designs.process-1-of-2.npz"]
-    again = pd.evaluate(problem, DESIGNS[:2], checkpoint=tmp_path / "designs.npz", resume=True)
-    np.testing.assert_array_equal(again.value, got.value)
 
 
 def test_resume_refuses_another_run_and_bad_paths(tmp_path):

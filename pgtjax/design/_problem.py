@@ -16,7 +16,13 @@ from .._deterministic import static_equilibrium
 from .._failure import SolverError
 from .._linearization import solve_moments
 from .._montecarlo import monte_carlo
-from .._parallel import device_mesh, local_devices, warn_if_lapack_batches_can_hang
+from .._parallel import (
+    device_mesh,
+    gather_processes,
+    local_devices,
+    refuse_together,
+    warn_if_lapack_batches_can_hang,
+)
 from .._system import check_count, validate_time_grid
 from ._objectives import AbstractCost, AbstractObjective, Names, _series, as_objective, check_costs
 from ._variables import DesignSpace
@@ -249,6 +255,7 @@ def evaluate(
     group_size: int | None = None,
     checkpoint=None,
     resume: bool = False,
+    distributed: bool = True,
 ) -> Terms:
     """Objective parts of many designs (sweeps, Pareto fronts, design batches): ``designs`` is (n_designs, n_z)
     coordinates. Returns :class:`Terms` with a leading design axis.
@@ -258,10 +265,11 @@ def evaluate(
     ``vmap`` of 14 planetary designs deadlocked inside XLA's CPU runtime in two of seven runs, so batching is
     opt-in: jaxlib 0.10.0-0.11.0 wait on their own thread pool in batched LAPACK calls, and warn here;
     docs/performance.md). ``group_size``: designs per device per compiled call (default: all at once, or 1 with a
-    checkpoint). ``checkpoint``: a ``.npz`` rewritten atomically after every group with the terms so far
-    (``<stem>.process-<p>-of-<n>.npz`` in each process of a distributed run: each evaluates every design on
-    its own devices); ``resume=True`` continues from it (same problem, designs, split and ``batch_size``
-    required)."""
+    checkpoint). ``distributed`` (default True; matters only after ``jax.distributed.initialize``): split
+    the designs over all processes in contiguous shares and return every design's terms in every process;
+    ``False``: this process evaluates all of them. ``checkpoint``: a ``.npz`` rewritten atomically after
+    every group with the terms so far (``<stem>.process-<p>-of-<n>.npz`` in each process of a distributed
+    run); ``resume=True`` continues from it (same problem, designs, split and ``batch_size`` required)."""
     zs = np.asarray(designs, dtype=np.float64)
     if zs.ndim != 2 or zs.shape[1] != problem.space.n or zs.shape[0] < 1:
         raise ValueError(f"`designs` must have shape (n_designs >= 1, {problem.space.n}), got {zs.shape}")
@@ -272,29 +280,49 @@ def evaluate(
         if batch_size > 1:
             warn_if_lapack_batches_can_hang(f"designs vmap-ed {batch_size} at a time", stacklevel=3)
     devices = local_devices(devices)
-    n, n_dev = zs.shape[0], len(devices)
-    # every process of a distributed run evaluates all designs on its own devices, into its own checkpoint
-    path = process_checkpoint_file(checkpoint, resume, jax.process_count(), jax.process_index())
+    n_proc, proc = (jax.process_count(), jax.process_index()) if distributed else (1, 0)
+    digest = tree_digest(zs)
+    if n_proc > 1:  # each process takes its share by position: all must hold the same designs
+        _check_processes_hold_the_same_designs(digest, zs.shape[0])
+    n_all = zs.shape[0]
+    share = -(-n_all // n_proc)  # designs per process; the last shares are padded with the last design
+    zs = np.concatenate([zs, np.repeat(zs[-1:], n_proc * share - n_all, axis=0)])[
+        proc * share : (proc + 1) * share
+    ]
+    n, n_dev = share, len(devices)
     if group_size is not None:
-        per_device = min(check_count("group_size", group_size), -(-n // n_dev))
-    else:
-        per_device = 1 if path is not None else -(-n // n_dev)
+        group_size = check_count("group_size", group_size)
+    try:  # this process's own checks, which may fail in one process only (a node-local file)
+        path = process_checkpoint_file(checkpoint, resume, n_proc, proc)
+        if group_size is not None:
+            per_device = min(group_size, -(-n // n_dev))
+        else:
+            per_device = 1 if path is not None else -(-n // n_dev)
+        description = dict(
+            problem=tree_digest(problem),
+            designs=digest,
+            n_designs=n_all,
+            devices=n_dev,
+            designs_per_device=per_device,
+            batch_size=batch_size,  # vmap-ed or one by one: equal to rounding, not digit for digit
+            processes=n_proc,
+            process=proc,
+        )
+        saved = load_checkpoint(path, description, what="evaluate") if resume else None
+        refusal = None
+    except ValueError as err:
+        refusal = err
+    if n_proc > 1:
+        refuse_together(refusal, "evaluate")
+    if refusal is not None:
+        raise refusal
     group = n_dev * per_device
     n_groups = -(-n // group)
     padded = np.concatenate([zs, np.repeat(zs[-1:], n_groups * group - n, axis=0)])  # repeats are dropped
-    description = dict(
-        problem=tree_digest(problem),
-        designs=tree_digest(zs),
-        n_designs=n,
-        devices=n_dev,
-        designs_per_device=per_device,
-        batch_size=batch_size,  # vmap-ed or one by one: equal to rounding, not digit for digit
-    )
     fields = Terms.__dataclass_fields__
     done: dict[str, list] = {f: [] for f in fields}
     first = 0
-    if resume:
-        saved = load_checkpoint(path, description, what="evaluate")
+    if saved is not None:
         first = int(saved.pop("next_group"))
         done = {f: [saved[f]] for f in fields}
     mesh = device_mesh(devices, _DESIGN_AXIS)
@@ -307,7 +335,23 @@ def evaluate(
         if path is not None:
             so_far = {f: np.concatenate(done[f]) for f in fields}
             save_checkpoint(path, dict(so_far, next_group=np.asarray(g + 1)), description, what="evaluate")
-    return Terms(**{f: jnp.asarray(np.concatenate(done[f])[:n]) for f in fields})
+    mine = {f: np.concatenate(done[f])[:n] for f in fields}
+    if n_proc > 1:  # every process's share, in process order, in every process
+        mine = {f: gather_processes(v).reshape((n_proc * n,) + v.shape[1:]) for f, v in mine.items()}
+    return Terms(**{f: jnp.asarray(v[:n_all]) for f, v in mine.items()})
+
+
+def _check_processes_hold_the_same_designs(digest: str, n_designs: int) -> None:
+    """``ValueError`` in every process of a distributed run unless all were given the same designs."""
+    mine = np.frombuffer(bytes.fromhex(digest), dtype=np.uint8)
+    digests = gather_processes(np.concatenate([mine, np.frombuffer(np.int64(n_designs).tobytes(), np.uint8)]))
+    if np.any(digests != digests[0]):
+        counts = [int(np.frombuffer(d[-8:].tobytes(), np.int64)[0]) for d in digests]
+        listed = "; ".join(f"process {p}: {c} designs" for p, c in enumerate(counts))
+        raise ValueError(
+            f"evaluate: the processes of a distributed run must be given the same `designs` ({listed}; "
+            "equal counts mean different values); pass the same array everywhere, or `distributed=False`"
+        )
 
 
 def check_samples(n_samples, batches) -> tuple[int, int]:
