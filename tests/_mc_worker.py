@@ -3,7 +3,7 @@ two-process ``jax.distributed`` run (a design batch too), or a run that kills it
 
 Usage: python3 _mc_worker.py sharded OUT
        python3 _mc_worker.py process PROCESS_ID N_PROCESSES PORT OUT [CHUNK_SIZE [CHECKPOINT_TO_RESUME]]
-       python3 _mc_worker.py designs-differ PROCESS_ID PORT
+       python3 _mc_worker.py designs-differ PROCESS_ID PORT count|nan|group
        python3 _mc_worker.py killed CHECKPOINT
        python3 _mc_worker.py killed-designs CHECKPOINT
        python3 _mc_worker.py cores N OUT
@@ -115,13 +115,21 @@ def main():
             out, **arrays(result), **{f"designs_{f}": np.asarray(getattr(designs, f)) for f in DESIGN_FIELDS}
         )
         jax.distributed.shutdown()
-    elif mode == "designs-differ":  # process p is given the first 4 + p designs: both must refuse
-        process_id, port = int(sys.argv[2]), sys.argv[3]
+    elif mode == "designs-differ":  # process 1 is given other designs or a bad option: both must refuse
+        process_id, port, variant = int(sys.argv[2]), sys.argv[3], sys.argv[4]
         jax.distributed.initialize(f"127.0.0.1:{port}", num_processes=2, process_id=process_id)
         from test_design import chain_problem
 
+        designs, options = DESIGNS.copy(), {}
+        if process_id == 1:
+            if variant == "count":  # 6 designs against process 0's 5
+                designs = np.concatenate([DESIGNS, DESIGNS[:1]])
+            elif variant == "nan":
+                designs[0, 0] = np.nan
+            elif variant == "group":
+                options = dict(group_size=0)
         try:
-            pd.evaluate(chain_problem(0.01), DESIGNS[: 4 + process_id])
+            pd.evaluate(chain_problem(0.01), designs, **options)
         except ValueError as err:
             print(err, file=sys.stderr)
             jax.distributed.shutdown()

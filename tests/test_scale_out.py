@@ -159,13 +159,19 @@ def test_processes_that_would_split_the_samples_differently_are_refused(tmp_path
     assert not list(tmp_path.iterdir())
 
 
-def test_processes_given_different_designs_are_refused():
-    """A design batch is split by position: processes holding different designs would mix two batches."""
-    port = _free_port()
-    procs = [_worker("designs-differ", p, port) for p in range(2)]
-    for code, err in [_finish(p) for p in procs]:
-        assert code == 3, err
-        assert "must be given the same `designs` (process 0: 4 designs; process 1: 5 designs" in err, err
+def test_processes_given_different_designs_or_a_bad_option_all_refuse():
+    """A design batch is split by position: processes holding different designs would mix two batches. And
+    an option that one process alone refuses must stop the other too, not leave it waiting in a collective."""
+    expected = {
+        "count": ["same `designs` (process 0: 5 designs; process 1: 6 designs"] * 2,
+        "nan": ["process(es) 1 refused this run's options", "`designs` must be finite"],
+        "group": ["process(es) 1 refused this run's options", "`group_size`"],
+    }
+    for variant, messages in expected.items():
+        port = _free_port()
+        procs = [_worker("designs-differ", p, port, variant) for p in range(2)]
+        for (code, err), message in zip([_finish(p) for p in procs], messages):
+            assert code == 3 and message in err, (variant, code, err)
 
 
 def test_one_process_refusing_its_options_stops_every_process(tmp_path):

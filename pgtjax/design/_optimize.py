@@ -357,7 +357,8 @@ def pareto_front(
             say(f"front: cost weight {w}: {r.history[-1]['iteration']} iterations, {r.reason}")
     if not runs:
         return []
-    terms = evaluate(problem, jnp.stack([jnp.asarray(r.z) for _, r in runs]))  # one compiled call
+    # one compiled call, in this process alone: each process of a distributed job holds its own optima
+    terms = evaluate(problem, jnp.stack([jnp.asarray(r.z) for _, r in runs]), distributed=False)
     return [
         dict(
             weight=w,

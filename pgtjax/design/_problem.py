@@ -270,20 +270,32 @@ def evaluate(
     ``False``: this process evaluates all of them. ``checkpoint``: a ``.npz`` rewritten atomically after
     every group with the terms so far (``<stem>.process-<p>-of-<n>.npz`` in each process of a distributed
     run); ``resume=True`` continues from it (same problem, designs, split and ``batch_size`` required)."""
-    zs = np.asarray(designs, dtype=np.float64)
-    if zs.ndim != 2 or zs.shape[1] != problem.space.n or zs.shape[0] < 1:
-        raise ValueError(f"`designs` must have shape (n_designs >= 1, {problem.space.n}), got {zs.shape}")
-    if not np.all(np.isfinite(zs)):
-        raise ValueError("`designs` must be finite")
-    if batch_size is not None:
-        batch_size = check_count("batch_size", batch_size)
-        if batch_size > 1:
-            warn_if_lapack_batches_can_hang(f"designs vmap-ed {batch_size} at a time", stacklevel=3)
-    devices = local_devices(devices)
     n_proc, proc = (jax.process_count(), jax.process_index()) if distributed else (1, 0)
-    digest = tree_digest(zs)
-    if n_proc > 1:  # each process takes its share by position: all must hold the same designs
-        _check_processes_hold_the_same_designs(digest, zs.shape[0])
+    # In a distributed job every check below is made in every process before the processes compare notes, so
+    # that one refusing process stops all instead of leaving the others waiting for it in a collective.
+    zs, digest, refusal = None, _NO_DIGEST, None
+    try:
+        zs = np.asarray(designs, dtype=np.float64)
+        if zs.ndim != 2 or zs.shape[1] != problem.space.n or zs.shape[0] < 1:
+            raise ValueError(f"`designs` must have shape (n_designs >= 1, {problem.space.n}), got {zs.shape}")
+        if not np.all(np.isfinite(zs)):
+            raise ValueError("`designs` must be finite")
+        digest = tree_digest(zs)
+        if batch_size is not None:
+            batch_size = check_count("batch_size", batch_size)
+            if batch_size > 1:
+                warn_if_lapack_batches_can_hang(f"designs vmap-ed {batch_size} at a time", stacklevel=3)
+        devices = local_devices(devices)
+        if group_size is not None:
+            group_size = check_count("group_size", group_size)
+        path = process_checkpoint_file(checkpoint, resume, n_proc, proc)
+    except ValueError as err:
+        refusal = err
+    problem_digest = tree_digest(problem)
+    if n_proc > 1:  # each process takes its share by position: all must hold the same problem and designs
+        _check_processes_agree(refusal, problem_digest, digest, -1 if zs is None or zs.ndim < 1 else len(zs))
+    if refusal is not None:
+        raise refusal
     n_all = zs.shape[0]
     share = -(-n_all // n_proc)  # designs per process; the last shares are padded with the last design
     zs = np.concatenate([zs, np.repeat(zs[-1:], n_proc * share - n_all, axis=0)])[
@@ -291,25 +303,21 @@ def evaluate(
     ]
     n, n_dev = share, len(devices)
     if group_size is not None:
-        group_size = check_count("group_size", group_size)
-    try:  # this process's own checks, which may fail in one process only (a node-local file)
-        path = process_checkpoint_file(checkpoint, resume, n_proc, proc)
-        if group_size is not None:
-            per_device = min(group_size, -(-n // n_dev))
-        else:
-            per_device = 1 if path is not None else -(-n // n_dev)
-        description = dict(
-            problem=tree_digest(problem),
-            designs=digest,
-            n_designs=n_all,
-            devices=n_dev,
-            designs_per_device=per_device,
-            batch_size=batch_size,  # vmap-ed or one by one: equal to rounding, not digit for digit
-            processes=n_proc,
-            process=proc,
-        )
+        per_device = min(group_size, -(-n // n_dev))
+    else:
+        per_device = 1 if path is not None else -(-n // n_dev)
+    description = dict(
+        problem=problem_digest,
+        designs=digest,
+        n_designs=n_all,
+        devices=n_dev,
+        designs_per_device=per_device,
+        batch_size=batch_size,  # vmap-ed or one by one: equal to rounding, not digit for digit
+        processes=n_proc,
+        process=proc,
+    )
+    try:  # this process's checkpoint, which may be missing in one process only (a node-local file)
         saved = load_checkpoint(path, description, what="evaluate") if resume else None
-        refusal = None
     except ValueError as err:
         refusal = err
     if n_proc > 1:
@@ -341,12 +349,36 @@ def evaluate(
     return Terms(**{f: jnp.asarray(v[:n_all]) for f, v in mine.items()})
 
 
-def _check_processes_hold_the_same_designs(digest: str, n_designs: int) -> None:
-    """``ValueError`` in every process of a distributed run unless all were given the same designs."""
-    mine = np.frombuffer(bytes.fromhex(digest), dtype=np.uint8)
-    digests = gather_processes(np.concatenate([mine, np.frombuffer(np.int64(n_designs).tobytes(), np.uint8)]))
-    if np.any(digests != digests[0]):
-        counts = [int(np.frombuffer(d[-8:].tobytes(), np.int64)[0]) for d in digests]
+_NO_DIGEST = "00" * 12  # tree_digest's length: a process whose designs were refused compares as this
+
+
+def _check_processes_agree(refusal, problem_digest: str, designs_digest: str, n_designs: int) -> None:
+    """One exchange between the processes of a distributed run: ``ValueError`` in every process where any
+    refused its options or where they hold different problems or designs."""
+    record = np.concatenate(
+        [
+            np.array([refusal is not None], dtype=np.uint8),
+            np.frombuffer(bytes.fromhex(problem_digest), dtype=np.uint8),
+            np.frombuffer(bytes.fromhex(designs_digest), dtype=np.uint8),
+            np.frombuffer(np.int64(n_designs).tobytes(), dtype=np.uint8),
+        ]
+    )
+    records = gather_processes(record)
+    if refusal is not None:
+        raise refusal
+    others = [p for p in np.flatnonzero(records[:, 0]) if p != jax.process_index()]
+    if others:
+        raise ValueError(
+            f"evaluate: process(es) {', '.join(map(str, others))} refused this run's options; "
+            "their messages say why"
+        )
+    if np.any(records[:, 1:13] != records[0, 1:13]):
+        raise ValueError(
+            "evaluate: the processes of a distributed run must be given the same `problem` (parameters, "
+            "response, objective and costs); build it alike everywhere, or pass `distributed=False`"
+        )
+    if np.any(records[:, 13:] != records[0, 13:]):
+        counts = [int(np.frombuffer(r[-8:].tobytes(), dtype=np.int64)[0]) for r in records]
         listed = "; ".join(f"process {p}: {c} designs" for p, c in enumerate(counts))
         raise ValueError(
             f"evaluate: the processes of a distributed run must be given the same `designs` ({listed}; "
