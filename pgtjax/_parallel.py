@@ -156,10 +156,16 @@ def gather_processes(array: np.ndarray) -> np.ndarray:
 
 def refuse_together(refusal: ValueError | None, what: str) -> None:
     """In a distributed run of ``what``, ``ValueError`` in every process where any process refused its options
-    (the others would otherwise wait for it at the end)."""
+    (the others would otherwise wait for it at the end); the refusing process raises its own ``refusal``."""
     refused = gather_processes(np.array([refusal is not None])).reshape(-1)
+    if refusal is None:
+        raise_if_others_refused(refused, what)
+
+
+def raise_if_others_refused(refused: np.ndarray, what: str) -> None:
+    """``ValueError`` naming the other processes whose flag in ``refused`` (one per process) is set."""
     others = [p for p in np.flatnonzero(refused) if p != jax.process_index()]
-    if refusal is None and others:
+    if others:
         raise ValueError(
             f"{what}: process(es) {', '.join(map(str, others))} refused this run's options; "
             "their messages say why"

@@ -20,7 +20,7 @@ from .._parallel import (
     device_mesh,
     gather_processes,
     local_devices,
-    refuse_together,
+    raise_if_others_refused,
     warn_if_lapack_batches_can_hang,
 )
 from .._system import check_count, validate_time_grid
@@ -271,59 +271,48 @@ def evaluate(
     every group with the terms so far (``<stem>.process-<p>-of-<n>.npz`` in each process of a distributed
     run); ``resume=True`` continues from it (same problem, designs, split and ``batch_size`` required)."""
     n_proc, proc = (jax.process_count(), jax.process_index()) if distributed else (1, 0)
-    # In a distributed job every check below is made in every process before the processes compare notes, so
-    # that one refusing process stops all instead of leaving the others waiting for it in a collective.
-    zs, digest, refusal = None, _NO_DIGEST, None
+    # In a distributed job every check below (the checkpoint's too) is made in every process before the processes
+    # compare notes once, so that one refusing process stops all instead of leaving the others in a collective.
+    zs, digest, n_all, refusal, saved = None, _NO_DIGEST, -1, None, None
+    problem_digest = tree_digest(problem)
     try:
         zs = np.asarray(designs, dtype=np.float64)
         if zs.ndim != 2 or zs.shape[1] != problem.space.n or zs.shape[0] < 1:
             raise ValueError(f"`designs` must have shape (n_designs >= 1, {problem.space.n}), got {zs.shape}")
         if not np.all(np.isfinite(zs)):
             raise ValueError("`designs` must be finite")
-        digest = tree_digest(zs)
+        digest, n_all = tree_digest(zs), zs.shape[0]
         if batch_size is not None:
             batch_size = check_count("batch_size", batch_size)
             if batch_size > 1:
                 warn_if_lapack_batches_can_hang(f"designs vmap-ed {batch_size} at a time", stacklevel=3)
         devices = local_devices(devices)
-        if group_size is not None:
-            group_size = check_count("group_size", group_size)
         path = process_checkpoint_file(checkpoint, resume, n_proc, proc)
+        n = -(-n_all // n_proc)  # designs per process; the last shares are padded with the last design
+        n_dev = len(devices)
+        if group_size is not None:
+            per_device = min(check_count("group_size", group_size), -(-n // n_dev))
+        else:
+            per_device = 1 if path is not None else -(-n // n_dev)
+        description = dict(
+            problem=problem_digest,
+            designs=digest,
+            n_designs=n_all,
+            devices=n_dev,
+            designs_per_device=per_device,
+            batch_size=batch_size,  # vmap-ed or one by one: equal to rounding, not digit for digit
+            processes=n_proc,
+            process=proc,
+        )
+        if resume:  # this process's checkpoint, which may be missing in one process only (a node-local file)
+            saved = load_checkpoint(path, description, what="evaluate")
     except ValueError as err:
         refusal = err
-    problem_digest = tree_digest(problem)
     if n_proc > 1:  # each process takes its share by position: all must hold the same problem and designs
-        _check_processes_agree(refusal, problem_digest, digest, -1 if zs is None or zs.ndim < 1 else len(zs))
+        _check_processes_agree(refusal, problem_digest, digest, n_all)
     if refusal is not None:
         raise refusal
-    n_all = zs.shape[0]
-    share = -(-n_all // n_proc)  # designs per process; the last shares are padded with the last design
-    zs = np.concatenate([zs, np.repeat(zs[-1:], n_proc * share - n_all, axis=0)])[
-        proc * share : (proc + 1) * share
-    ]
-    n, n_dev = share, len(devices)
-    if group_size is not None:
-        per_device = min(group_size, -(-n // n_dev))
-    else:
-        per_device = 1 if path is not None else -(-n // n_dev)
-    description = dict(
-        problem=problem_digest,
-        designs=digest,
-        n_designs=n_all,
-        devices=n_dev,
-        designs_per_device=per_device,
-        batch_size=batch_size,  # vmap-ed or one by one: equal to rounding, not digit for digit
-        processes=n_proc,
-        process=proc,
-    )
-    try:  # this process's checkpoint, which may be missing in one process only (a node-local file)
-        saved = load_checkpoint(path, description, what="evaluate") if resume else None
-    except ValueError as err:
-        refusal = err
-    if n_proc > 1:
-        refuse_together(refusal, "evaluate")
-    if refusal is not None:
-        raise refusal
+    zs = np.concatenate([zs, np.repeat(zs[-1:], n_proc * n - n_all, axis=0)])[proc * n : (proc + 1) * n]
     group = n_dev * per_device
     n_groups = -(-n // group)
     padded = np.concatenate([zs, np.repeat(zs[-1:], n_groups * group - n, axis=0)])  # repeats are dropped
@@ -366,12 +355,7 @@ def _check_processes_agree(refusal, problem_digest: str, designs_digest: str, n_
     records = gather_processes(record)
     if refusal is not None:
         raise refusal
-    others = [p for p in np.flatnonzero(records[:, 0]) if p != jax.process_index()]
-    if others:
-        raise ValueError(
-            f"evaluate: process(es) {', '.join(map(str, others))} refused this run's options; "
-            "their messages say why"
-        )
+    raise_if_others_refused(records[:, 0], "evaluate")
     if np.any(records[:, 1:13] != records[0, 1:13]):
         raise ValueError(
             "evaluate: the processes of a distributed run must be given the same `problem` (parameters, "
