@@ -19,6 +19,7 @@ from ._contact import ForceCriterion as ForceCriterion
 from ._contact import Linearization as Linearization
 from ._deterministic import simulate as simulate
 from ._deterministic import static_equilibrium as static_equilibrium
+from ._failure import ProcessFailedError as ProcessFailedError
 from ._failure import SolverError as SolverError
 from ._linearization import solve_moments as solve_moments
 from ._modal import Modes as Modes

@@ -22,6 +22,11 @@ class SolverError(RuntimeError):
     converge), with the first time and quantity where it happened."""
 
 
+class ProcessFailedError(RuntimeError):
+    """Another process of a distributed run failed during the run; its own output says why. This process
+    finished its share (and saved it where a checkpoint was given), so a resume reruns only what is missing."""
+
+
 def is_concrete(tree) -> bool:
     """True if no leaf of ``tree`` is traced (the check can then run in Python, with a detailed message)."""
     return not any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(tree))

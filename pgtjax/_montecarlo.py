@@ -44,7 +44,14 @@ from ._newmark import (
     sample_step,
     snapshot,
 )
-from ._parallel import default_chunk_size, device_mesh, gather_processes, local_devices, refuse_together
+from ._parallel import (
+    default_chunk_size,
+    device_mesh,
+    fail_together,
+    gather_processes,
+    local_devices,
+    refuse_together,
+)
 from ._random import block_normals
 from ._random import normal as standard_normal
 from ._random import stream as normals_stream
@@ -481,7 +488,9 @@ def monte_carlo(
             ``chunk_size`` samples per device at a time); default all of ``jax.local_devices()``.
         distributed: when JAX's distributed runtime is initialized (``jax.distributed.initialize``, more than
             one process), split the samples over all processes and return the merged statistics on every
-            process; ``False``: this process runs all ``n_samples`` alone.
+            process; ``False``: this process runs all ``n_samples`` alone. An error in one process during
+            the run stops every process once all have run their shares (the others raise
+            :class:`~pgtjax.ProcessFailedError`).
         checkpoint: a ``.npz`` path where the running statistics and the position in the sample sequence are
             written atomically every ``checkpoint_every`` rounds (a round: ``chunk_size`` samples on each
             device) and at the end; with several processes each writes its own file
@@ -592,48 +601,49 @@ def monte_carlo(
     bar = _progress_bar(n_samples, progress and proc == 0)
     if bar is not None and first_round:
         bar.update(min(first_round * round_size, n_samples))
-    for r in range(first_round, n_rounds):
-        ids = (
-            r * round_size
-            + proc * n_dev * per_device
-            + np.arange(n_dev * per_device).reshape(n_dev, per_device)
-        )
-        weights = (ids < n_samples).astype(np.float64)
-        # padding rows (weight 0) repeat the last sample: a sample of their own could be NaN where every real
-        # one is finite, and 0 x NaN would spoil the sums
-        parts, bad = _chunk(
-            system,
-            key,
-            jnp.asarray(np.minimum(ids, n_samples - 1)),
-            jnp.asarray(weights),
-            u0,
-            v0,
-            init_factor,
-            jnp.asarray(t0, jnp.float64),
-            jnp.asarray(dt, jnp.float64),
-            hist_edges,
-            observables,
-            eigen,
-            mesh=mesh,
-            n_steps=n_steps,
-            save_every=save_every,
-            integrator=integrator,
-            hist_columns=tuple(hist_columns),
-            cov_columns=cov_columns,
-        )
-        parts, bad = [np.asarray(a) for a in parts], np.asarray(bad)
-        for d in range(n_dev):
-            part = _Moments(float(weights[d].sum()), *(a[d] for a in parts), bad=float(bad[d]))
-            moments = part if moments is None else moments.merge(part, cov_columns)
-        if checkpoint is not None and ((r + 1) % checkpoint_every == 0 or r + 1 == n_rounds):
-            save_checkpoint(
-                checkpoint,
-                dict(moments.arrays(), next_round=np.asarray(r + 1)),
-                description,
-                what="monte_carlo",
+    with fail_together("monte_carlo", n_proc > 1):  # one process failing stops all, at the end
+        for r in range(first_round, n_rounds):
+            ids = (
+                r * round_size
+                + proc * n_dev * per_device
+                + np.arange(n_dev * per_device).reshape(n_dev, per_device)
             )
-        if bar is not None:
-            bar.update(min(round_size, n_samples - r * round_size))
+            weights = (ids < n_samples).astype(np.float64)
+            # padding rows (weight 0) repeat the last sample: a sample of their own could be NaN where every real
+            # one is finite, and 0 x NaN would spoil the sums
+            parts, bad = _chunk(
+                system,
+                key,
+                jnp.asarray(np.minimum(ids, n_samples - 1)),
+                jnp.asarray(weights),
+                u0,
+                v0,
+                init_factor,
+                jnp.asarray(t0, jnp.float64),
+                jnp.asarray(dt, jnp.float64),
+                hist_edges,
+                observables,
+                eigen,
+                mesh=mesh,
+                n_steps=n_steps,
+                save_every=save_every,
+                integrator=integrator,
+                hist_columns=tuple(hist_columns),
+                cov_columns=cov_columns,
+            )
+            parts, bad = [np.asarray(a) for a in parts], np.asarray(bad)
+            for d in range(n_dev):
+                part = _Moments(float(weights[d].sum()), *(a[d] for a in parts), bad=float(bad[d]))
+                moments = part if moments is None else moments.merge(part, cov_columns)
+            if checkpoint is not None and ((r + 1) % checkpoint_every == 0 or r + 1 == n_rounds):
+                save_checkpoint(
+                    checkpoint,
+                    dict(moments.arrays(), next_round=np.asarray(r + 1)),
+                    description,
+                    what="monte_carlo",
+                )
+            if bar is not None:
+                bar.update(min(round_size, n_samples - r * round_size))
     if bar is not None:
         bar.close()
     if n_proc > 1:

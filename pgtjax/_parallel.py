@@ -3,6 +3,7 @@ and design batches alike."""
 
 from __future__ import annotations
 
+import contextlib
 import importlib.metadata
 import os
 import re
@@ -10,6 +11,8 @@ import warnings
 
 import jax
 import numpy as np
+
+from ._failure import ProcessFailedError
 
 CPU_CHUNK_SIZE = 5000
 ACCELERATOR_CHUNK_SIZE = 100_000
@@ -160,6 +163,28 @@ def refuse_together(refusal: ValueError | None, what: str) -> None:
     refused = gather_processes(np.array([refusal is not None])).reshape(-1)
     if refusal is None:
         raise_if_others_refused(refused, what)
+
+
+@contextlib.contextmanager
+def fail_together(what: str, distributed: bool):
+    """Around the part of a distributed run of ``what`` that each process does alone (no collective inside):
+    where it raises an ``Exception`` in any process, every process raises once all have done their part,
+    instead of the others waiting for the failed one in the next collective. The failing process raises its
+    own error, the others :class:`ProcessFailedError` naming it. Not distributed: nothing is exchanged."""
+    failure = None
+    try:
+        yield
+    except Exception as err:  # not KeyboardInterrupt: an interrupted process stops at once
+        failure = err
+    failed = gather_processes(np.array([failure is not None])).reshape(-1) if distributed else None
+    if failure is not None:
+        raise failure
+    others = [] if failed is None else [p for p in np.flatnonzero(failed) if p != jax.process_index()]
+    if others:
+        raise ProcessFailedError(
+            f"{what}: process(es) {', '.join(map(str, others))} failed during the run (their messages say why); "
+            "this process finished its share, and saved it where a checkpoint was given"
+        )
 
 
 def raise_if_others_refused(refused: np.ndarray, what: str) -> None:

@@ -4,6 +4,7 @@ two-process ``jax.distributed`` run (a design batch too), or a run that kills it
 Usage: python3 _mc_worker.py sharded OUT
        python3 _mc_worker.py process PROCESS_ID N_PROCESSES PORT OUT [CHUNK_SIZE [CHECKPOINT_TO_RESUME]]
        python3 _mc_worker.py designs-differ PROCESS_ID PORT count|nan|group
+       python3 _mc_worker.py fails-midway PROCESS_ID PORT CHECKPOINT mc|designs
        python3 _mc_worker.py killed CHECKPOINT
        python3 _mc_worker.py killed-designs CHECKPOINT
        python3 _mc_worker.py cores N OUT
@@ -134,6 +135,32 @@ def main():
             print(err, file=sys.stderr)
             jax.distributed.shutdown()
             sys.exit(3)
+    elif mode == "fails-midway":  # process 1's second checkpoint write fails (a full node-local disk)
+        process_id, port, checkpoint, job = int(sys.argv[2]), sys.argv[3], sys.argv[4], sys.argv[5]
+        jax.distributed.initialize(f"127.0.0.1:{port}", num_processes=2, process_id=process_id)
+        module = montecarlo_module if job == "mc" else design_problem_module
+        if process_id == 1:
+            save, written = module.save_checkpoint, []
+
+            def save_until_the_disk_is_full(*args, **kwargs):
+                written.append(1)
+                if len(written) == 2:
+                    raise OSError(28, "No space left on device (injected by the test)")
+                return save(*args, **kwargs)
+
+            module.save_checkpoint = save_until_the_disk_is_full
+        try:
+            if job == "mc":
+                run(chunk_size=20, checkpoint=checkpoint)
+            else:
+                from test_design import chain_problem
+
+                pd.evaluate(chain_problem(0.01), DESIGNS, checkpoint=checkpoint)
+        except (OSError, pg.ProcessFailedError) as err:
+            print(f"{type(err).__name__}: {err}", file=sys.stderr)
+            jax.distributed.shutdown()
+            sys.exit(4)
+        jax.distributed.shutdown()
     elif mode in ("killed", "killed-designs"):
         module = montecarlo_module if mode == "killed" else design_problem_module
         save = module.save_checkpoint

@@ -37,8 +37,13 @@ def _worker(*args):
     )
 
 
-def _finish(proc):
-    _, err = proc.communicate(timeout=TIMEOUT_S)
+def _finish(proc, timeout=TIMEOUT_S):
+    try:
+        _, err = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        _, err = proc.communicate()
+        pytest.fail(f"worker still running after {timeout} s (waiting for another process?): {err[-3000:]}")
     return proc.returncode, err
 
 
@@ -189,6 +194,33 @@ def test_one_process_refusing_its_options_stops_every_process(tmp_path):
     assert code0 == 3 and "process(es) 1 refused this run's options" in err0, err0
 
 
+def test_a_process_failing_mid_run_stops_every_process_and_the_run_resumes(tmp_path, reference):
+    """Process 1's second checkpoint write fails (a full disk, injected by the worker) after every check has
+    passed: both processes stop with a message instead of process 0 waiting for it in the final exchange
+    (before, process 0 hung until the coordination service aborted process 1). Process 0 has saved its whole
+    share; resuming both finishes process 1's and gives the statistics of the uninterrupted run."""
+    for job, what in (("mc", "monte_carlo"), ("designs", "evaluate")):
+        port = _free_port()
+        procs = [_worker("fails-midway", p, port, tmp_path / f"{job}.npz", job) for p in range(2)]
+        (code0, err0), (code1, err1) = [_finish(p, timeout=300) for p in procs]
+        assert code1 == 4 and "OSError: [Errno 28] No space left on device" in err1, err1
+        assert code0 == 4 and f"ProcessFailedError: {what}: process(es) 1 failed during the run" in err0, err0
+    # 203 samples, 20 per round and process: 6 rounds; process 1 failed writing after its second round
+    for p, rounds in ((0, 6), (1, 1)):
+        with np.load(tmp_path / f"mc.process-{p}-of-2.npz") as saved:
+            assert int(saved["next_round"]) == rounds, p
+    (tmp_path / "resumed").mkdir()
+    port = _free_port()
+    procs = [
+        _worker("process", p, 2, port, tmp_path / "resumed" / f"p{p}.npz", 20, tmp_path / "mc.npz")
+        for p in range(2)
+    ]
+    for code, err in [_finish(p) for p in procs]:
+        assert code == 0, err
+    for p in range(2):
+        _assert_same(dict(np.load(tmp_path / "resumed" / f"p{p}.npz")), reference, 1e-12)
+
+
 def test_killed_after_second_checkpoint_resumes_to_the_uninterrupted_run(tmp_path):
     checkpoint = tmp_path / "mc.npz"
     code, err = _finish(_worker("killed", checkpoint))
@@ -313,6 +345,29 @@ def test_cli_resume_after_an_interruption_gives_the_same_outputs(tmp_path, monke
     assert "--processes" in capsys.readouterr().err
     assert main(["run", *"--coordinator 127.0.0.1:1 --processes 2 --process-id 2".split()]) == 2
     assert "--process-id" in capsys.readouterr().err
+
+
+def test_cli_reports_another_process_failing_in_one_line(tmp_path, monkeypatch, capsys):
+    import pgtjax as pg
+    from pgtjax.cli import main
+    from pgtjax.studies import planetary as study
+
+    def another_process_failed(*args, **kwargs):
+        raise pg.ProcessFailedError(
+            "monte_carlo: process(es) 1 failed during the run (their messages say why)"
+        )
+
+    monkeypatch.setattr(study, "run_study", another_process_failed)
+    out = tmp_path / "run"
+    assert (
+        main(["run", "--samples", "10", "--no-sweeps", "--no-sensitivities", "--quiet", "--out", str(out)])
+        == 1
+    )
+    err = capsys.readouterr().err
+    assert err.splitlines() == [
+        "pgtjax: error: monte_carlo: process(es) 1 failed during the run (their messages say why)"
+    ]
+    assert not out.exists()  # the output folder it created was empty, and removed
 
 
 def test_cli_cpu_devices_option(capsys):

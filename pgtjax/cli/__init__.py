@@ -20,7 +20,7 @@ import time
 import warnings
 from pathlib import Path
 
-from .._failure import SolverError
+from .._failure import ProcessFailedError, SolverError
 from .._files import interrupted_message
 from .._parallel import lapack_batches_wait_on_pool, use_cpu_cores
 from . import back_to_back, design, gear_pair, planetary, ring
@@ -155,6 +155,9 @@ def main(argv=None) -> int:
     except (ValueError, argparse.ArgumentTypeError) as err:  # bad input: a clear message, no traceback
         print(f"pgtjax: error: {err}", file=sys.stderr)
         return 2
+    except ProcessFailedError as err:  # another process of a distributed run failed: its output says why
+        print(f"pgtjax: error: {err}", file=sys.stderr)
+        return 1
     except SolverError as err:  # a numerical failure, with when and where
         print(f"pgtjax: numerical failure: {err}", file=sys.stderr)
         return 1

@@ -18,6 +18,7 @@ from .._linearization import solve_moments
 from .._montecarlo import monte_carlo
 from .._parallel import (
     device_mesh,
+    fail_together,
     gather_processes,
     local_devices,
     raise_if_others_refused,
@@ -323,15 +324,18 @@ def evaluate(
         first = int(saved.pop("next_group"))
         done = {f: [saved[f]] for f in fields}
     mesh = device_mesh(devices, _DESIGN_AXIS)
-    for g in range(first, n_groups):
-        block = padded[g * group : (g + 1) * group].reshape(n_dev, per_device, -1)
-        terms = _batch_terms(problem, jnp.asarray(block), batch_size, mesh=mesh)
-        for f in fields:
-            value = np.asarray(getattr(terms, f))
-            done[f].append(value.reshape((group,) + value.shape[2:]))
-        if path is not None:
-            so_far = {f: np.concatenate(done[f]) for f in fields}
-            save_checkpoint(path, dict(so_far, next_group=np.asarray(g + 1)), description, what="evaluate")
+    with fail_together("evaluate", n_proc > 1):  # one process failing stops all, at the end
+        for g in range(first, n_groups):
+            block = padded[g * group : (g + 1) * group].reshape(n_dev, per_device, -1)
+            terms = _batch_terms(problem, jnp.asarray(block), batch_size, mesh=mesh)
+            for f in fields:
+                value = np.asarray(getattr(terms, f))
+                done[f].append(value.reshape((group,) + value.shape[2:]))
+            if path is not None:
+                so_far = {f: np.concatenate(done[f]) for f in fields}
+                save_checkpoint(
+                    path, dict(so_far, next_group=np.asarray(g + 1)), description, what="evaluate"
+                )
     mine = {f: np.concatenate(done[f])[:n] for f in fields}
     if n_proc > 1:  # every process's share, in process order, in every process
         mine = {f: gather_processes(v).reshape((n_proc * n,) + v.shape[1:]) for f, v in mine.items()}

@@ -646,6 +646,11 @@ def build(p: PlanetaryParams | None = None) -> System:
         raise ValueError(f"`p` must be PlanetaryParams (planetary.load_params / default_params), got {p!r}")
     p = resolved(default_params() if p is None else p)
     validate(p)
+    return _assemble_system(p)
+
+
+@eqx.filter_jit  # one compiled program: run op by op, a first build compiled about 150 small kernels (seconds)
+def _assemble_system(p: PlanetaryParams) -> System:
     lay = layout(p)
     ring = ring_block(p)  # assembled once for both matrices
     mass = mass_matrix(p, lay, ring)
