@@ -518,90 +518,98 @@ def monte_carlo(
         distributed=distributed,
         checkpoint_every=checkpoint_every,
     )
-    if propagation not in PROPAGATIONS:
-        raise ValueError(f"`propagation` must be one of {PROPAGATIONS}, got {propagation!r}")
-    eigen = None
-    if propagation != "physical":
-        # the eigenbasis is that of the built-in average-acceleration map; another integrator's is not known
-        builtin = type(integrator) in (Newmark, NewmarkBridge)
-        eigen, reason = eigen_propagator(system, dt) if builtin else (None, "a custom integrator is used")
-        if eigen is None and propagation == "eigen":
-            raise ValueError(f"`propagation='eigen'` is not available for this system: {reason}")
-    n = system.n_dof
-    u0, v0 = initial_state(system, initial_displacement, initial_velocity)
-    if initial_covariance is None:
-        init_factor = jnp.zeros((2 * n, 0))
-    else:
-        p0 = np.asarray(check_initial_covariance(system, initial_covariance))
-        init_factor = jnp.asarray(_symmetric_square_root(0.5 * (p0 + p0.T)))
-    names = quantity_names(system, observables)
-    if histograms is not None and not isinstance(histograms, Mapping):
-        raise ValueError(
-            f"`histograms` must be a dict {{quantity name: bin edges}}, e.g. {{'u:x': np.linspace(-1e-4, 1e-4, 41)}}, "
-            f"got {type(histograms).__name__}"
-        )
-    histograms = dict(histograms or {})
-    hist_columns, edges = [], []
-    for name, e in histograms.items():
-        if name not in names:
-            raise ValueError(f"unknown histogram quantity {name!r}; choose from {names}")
-        e = np.asarray(e, dtype=np.float64)
-        if e.ndim != 1 or e.size < 2 or np.any(np.diff(e) <= 0) or not np.all(np.isfinite(e)):
-            raise ValueError(
-                f"histogram edges for {name!r} must be a finite increasing 1-D array (>= 2 edges)"
-            )
-        hist_columns.append(names.index(name))
-        edges.append(e)
-    if len({e.size for e in edges}) > 1:
-        raise ValueError("all histogram edge arrays must have the same length")
-    histogram_times = _check_histogram_times(histogram_times, histograms, t0, dt * n_steps, dt * save_every)
-    n_saved = n_steps // save_every + 1
-    cov_size = len(covariance_index(system, covariance_dofs))
-    per_save = 2 * len(names) + sum(e.size + 1 for e in edges) + cov_size**2  # mean, M2, counts, comoments
-    check_memory("monte_carlo", n_saved, per_save)
-    hist_edges = jnp.asarray(np.stack(edges)) if edges else jnp.zeros((0, 2))
-    cov_columns = covariance_index(system, covariance_dofs)  # u then v: the columns of q, too
-    devices = local_devices(devices)
     n_proc, proc = (jax.process_count(), jax.process_index()) if distributed else (1, 0)
-    n_dev = len(devices)
-    mesh = device_mesh(devices, _SAMPLE_AXIS)
-    # round r: n_proc x n_dev rows of per_device consecutive sample ids, row (p, d) on device d of process p
-    per_device = _samples_per_device(n_samples, chunk_size, devices, n_proc)
-    round_size = n_proc * n_dev * per_device
-    n_rounds = -(-n_samples // round_size)
-    checkpoint_every = int(checkpoint_every)
-    description = dict(
-        # one entry per input, so that a refused resume names what differs (a changed seed shows as the key)
-        system=tree_digest(system),
-        key=_recorded_key(key),
-        initial_state=tree_digest(u0, v0, init_factor),
-        observables=tree_digest(observables),
-        histogram_edges=tree_digest(hist_edges),
-        integrator=tree_digest(integrator),
-        normals=normals_stream(key),
-        quantities=names,
-        histograms=list(histograms),
-        covariance_columns=list(cov_columns),
-        propagation="physical" if eigen is None else "eigen",
-        t0=float(t0),
-        dt=float(dt),
-        n_steps=n_steps,
-        save_every=save_every,
-        n_samples=int(n_samples),
-        samples_per_device=per_device,
-        devices=n_dev,
-        processes=n_proc,
-        process=proc,
-    )
     moments, first_round = None, 0
-    if resume:
-        saved = load_checkpoint(checkpoint, description, what="monte_carlo")
-        first_round = int(saved.pop("next_round"))
-        moments = _Moments.from_arrays(saved)
+    # checks and work that may fail in one process only (its memory, its node-local checkpoint): all stop
+    with fail_together("monte_carlo", n_proc > 1, stage="before the run"):
+        if propagation not in PROPAGATIONS:
+            raise ValueError(f"`propagation` must be one of {PROPAGATIONS}, got {propagation!r}")
+        eigen = None
+        if propagation != "physical":
+            # the eigenbasis is that of the built-in average-acceleration map; another integrator's is not known
+            builtin = type(integrator) in (Newmark, NewmarkBridge)
+            eigen, reason = eigen_propagator(system, dt) if builtin else (None, "a custom integrator is used")
+            if eigen is None and propagation == "eigen":
+                raise ValueError(f"`propagation='eigen'` is not available for this system: {reason}")
+        n = system.n_dof
+        u0, v0 = initial_state(system, initial_displacement, initial_velocity)
+        if initial_covariance is None:
+            init_factor = jnp.zeros((2 * n, 0))
+        else:
+            p0 = np.asarray(check_initial_covariance(system, initial_covariance))
+            init_factor = jnp.asarray(_symmetric_square_root(0.5 * (p0 + p0.T)))
+        names = quantity_names(system, observables)
+        if histograms is not None and not isinstance(histograms, Mapping):
+            raise ValueError(
+                f"`histograms` must be a dict {{quantity name: bin edges}}, e.g. {{'u:x': np.linspace(-1e-4, 1e-4, 41)}}, "
+                f"got {type(histograms).__name__}"
+            )
+        histograms = dict(histograms or {})
+        hist_columns, edges = [], []
+        for name, e in histograms.items():
+            if name not in names:
+                raise ValueError(f"unknown histogram quantity {name!r}; choose from {names}")
+            e = np.asarray(e, dtype=np.float64)
+            if e.ndim != 1 or e.size < 2 or np.any(np.diff(e) <= 0) or not np.all(np.isfinite(e)):
+                raise ValueError(
+                    f"histogram edges for {name!r} must be a finite increasing 1-D array (>= 2 edges)"
+                )
+            hist_columns.append(names.index(name))
+            edges.append(e)
+        if len({e.size for e in edges}) > 1:
+            raise ValueError("all histogram edge arrays must have the same length")
+        histogram_times = _check_histogram_times(
+            histogram_times, histograms, t0, dt * n_steps, dt * save_every
+        )
+        n_saved = n_steps // save_every + 1
+        cov_size = len(covariance_index(system, covariance_dofs))
+        per_save = (
+            2 * len(names) + sum(e.size + 1 for e in edges) + cov_size**2
+        )  # mean, M2, counts, comoments
+        check_memory("monte_carlo", n_saved, per_save)
+        hist_edges = jnp.asarray(np.stack(edges)) if edges else jnp.zeros((0, 2))
+        cov_columns = covariance_index(system, covariance_dofs)  # u then v: the columns of q, too
+        devices = local_devices(devices)
+        n_dev = len(devices)
+        mesh = device_mesh(devices, _SAMPLE_AXIS)
+        # round r: n_proc x n_dev rows of per_device consecutive sample ids, row (p, d) on device d of process p
+        per_device = _samples_per_device(n_samples, chunk_size, devices, n_proc)
+        round_size = n_proc * n_dev * per_device
+        n_rounds = -(-n_samples // round_size)
+        checkpoint_every = int(checkpoint_every)
+        description = dict(
+            # one entry per input, so that a refused resume names what differs (a changed seed shows as the key)
+            system=tree_digest(system),
+            key=_recorded_key(key),
+            initial_state=tree_digest(u0, v0, init_factor),
+            observables=tree_digest(observables),
+            histogram_edges=tree_digest(hist_edges),
+            integrator=tree_digest(integrator),
+            normals=normals_stream(key),
+            quantities=names,
+            histograms=list(histograms),
+            covariance_columns=list(cov_columns),
+            propagation="physical" if eigen is None else "eigen",
+            t0=float(t0),
+            dt=float(dt),
+            n_steps=n_steps,
+            save_every=save_every,
+            n_samples=int(n_samples),
+            samples_per_device=per_device,
+            devices=n_dev,
+            processes=n_proc,
+            process=proc,
+        )
+        if resume:
+            saved = load_checkpoint(checkpoint, description, what="monte_carlo")
+            first_round = int(saved.pop("next_round"))
+            moments = _Moments.from_arrays(saved)
     bar = _progress_bar(n_samples, progress and proc == 0)
     if bar is not None and first_round:
         bar.update(min(first_round * round_size, n_samples))
-    with fail_together("monte_carlo", n_proc > 1):  # one process failing stops all, at the end
+    with fail_together(
+        "monte_carlo", n_proc > 1, stage="during the run"
+    ):  # one failing stops all, at the end
         for r in range(first_round, n_rounds):
             ids = (
                 r * round_size

@@ -166,11 +166,12 @@ def refuse_together(refusal: ValueError | None, what: str) -> None:
 
 
 @contextlib.contextmanager
-def fail_together(what: str, distributed: bool):
-    """Around the part of a distributed run of ``what`` that each process does alone (no collective inside):
+def fail_together(what: str, distributed: bool, stage: str):
+    """Around a part of a distributed run of ``what`` that each process does alone (no collective inside):
     where it raises an ``Exception`` in any process, every process raises once all have done their part,
     instead of the others waiting for the failed one in the next collective. The failing process raises its
-    own error, the others :class:`ProcessFailedError` naming it. Not distributed: nothing is exchanged."""
+    own error, the others :class:`ProcessFailedError` naming it and the ``stage`` ("before the run", "during
+    the run"). Not distributed: nothing is exchanged."""
     failure = None
     try:
         yield
@@ -181,9 +182,13 @@ def fail_together(what: str, distributed: bool):
         raise failure
     others = [] if failed is None else [p for p in np.flatnonzero(failed) if p != jax.process_index()]
     if others:
-        raise ProcessFailedError(
-            f"{what}: process(es) {', '.join(map(str, others))} failed during the run (their messages say why); "
+        done = (
             "this process finished its share, and saved it where a checkpoint was given"
+            if stage == "during the run"
+            else "nothing was computed"
+        )
+        raise ProcessFailedError(
+            f"{what}: process(es) {', '.join(map(str, others))} failed {stage} (their messages say why); {done}"
         )
 
 

@@ -103,8 +103,11 @@ def main():
         resume = dict(checkpoint=sys.argv[7], resume=True) if len(sys.argv) > 7 else {}
         try:
             result = run(chunk_size=chunk_size, **resume)
-        except ValueError as err:  # refused: say why, and leave the distributed runtime cleanly
-            print(err, file=sys.stderr)
+        except (
+            ValueError,
+            pg.ProcessFailedError,
+        ) as err:  # refused here or elsewhere: say why, leave cleanly
+            print(f"{type(err).__name__}: {err}", file=sys.stderr)
             jax.distributed.shutdown()
             sys.exit(3)
         from test_design import chain_problem

@@ -198,7 +198,10 @@ def test_a_process_failing_mid_run_stops_every_process_and_the_run_resumes(tmp_p
     """Process 1's second checkpoint write fails (a full disk, injected by the worker) after every check has
     passed: both processes stop with a message instead of process 0 waiting for it in the final exchange
     (before, process 0 hung until the coordination service aborted process 1). Process 0 has saved its whole
-    share; resuming both finishes process 1's and gives the statistics of the uninterrupted run."""
+    share; resuming both finishes process 1's and gives the statistics of the uninterrupted run. A resume where
+    one node holds another run's file (refused only when loaded, after the start-up exchange) stops both."""
+    from pgtjax._checkpoint import save_checkpoint
+
     for job, what in (("mc", "monte_carlo"), ("designs", "evaluate")):
         port = _free_port()
         procs = [_worker("fails-midway", p, port, tmp_path / f"{job}.npz", job) for p in range(2)]
@@ -210,6 +213,20 @@ def test_a_process_failing_mid_run_stops_every_process_and_the_run_resumes(tmp_p
         with np.load(tmp_path / f"mc.process-{p}-of-2.npz") as saved:
             assert int(saved["next_round"]) == rounds, p
     (tmp_path / "resumed").mkdir()
+    # process 1's node holds a file that the start-up check accepts (same sizes and key) but whose description
+    # lacks the rest of this run's: process 1 refuses it when loading it, and process 0 stops too
+    good = (tmp_path / "mc.process-1-of-2.npz").read_bytes()
+    stale = dict(n_samples=203, samples_per_device=20, devices=1, processes=2, process=1, key=[0, 17])
+    save_checkpoint(tmp_path / "mc.process-1-of-2.npz", {"count": 0.0}, stale, what="monte_carlo")
+    port = _free_port()
+    procs = [
+        _worker("process", p, 2, port, tmp_path / "resumed" / f"p{p}.npz", 20, tmp_path / "mc.npz")
+        for p in range(2)
+    ]
+    (code0, err0), (code1, err1) = [_finish(p, timeout=300) for p in procs]
+    assert code1 == 3 and "ValueError: cannot resume monte_carlo from" in err1, err1
+    assert code0 == 3 and "monte_carlo: process(es) 1 failed before the run" in err0, err0
+    (tmp_path / "mc.process-1-of-2.npz").write_bytes(good)
     port = _free_port()
     procs = [
         _worker("process", p, 2, port, tmp_path / "resumed" / f"p{p}.npz", 20, tmp_path / "mc.npz")

@@ -324,7 +324,7 @@ def evaluate(
         first = int(saved.pop("next_group"))
         done = {f: [saved[f]] for f in fields}
     mesh = device_mesh(devices, _DESIGN_AXIS)
-    with fail_together("evaluate", n_proc > 1):  # one process failing stops all, at the end
+    with fail_together("evaluate", n_proc > 1, stage="during the run"):  # one failing stops all, at the end
         for g in range(first, n_groups):
             block = padded[g * group : (g + 1) * group].reshape(n_dev, per_device, -1)
             terms = _batch_terms(problem, jnp.asarray(block), batch_size, mesh=mesh)
