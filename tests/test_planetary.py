@@ -323,10 +323,10 @@ def test_gradient_independent_of_save_interval_checkpointing_and_mode():
     x = jnp.array([0.128, 1.362e10])
     want = jax.grad(response)(x, 3, False)
     assert want.dtype == jnp.float64 and bool(jnp.all(want != 0))
-    for save_every in (1, 3):
-        got = jax.grad(response)(x, save_every, True)
-        np.testing.assert_allclose(got, want, rtol=1e-9)
-    np.testing.assert_allclose(jax.jacfwd(response)(x, 3, True), want, rtol=1e-9)
+    # each variant is a program of its own (~30 s of compilation on 2 cores): every factor changes once
+    # against `want`, which is neither split finer nor rematerialized nor forward mode
+    np.testing.assert_allclose(jax.grad(response)(x, 1, True), want, rtol=1e-9)  # split, rematerialized
+    np.testing.assert_allclose(jax.jacfwd(response)(x, 3, True), want, rtol=1e-9)  # forward, rematerialized
 
 
 def test_build_checks_values_in_python_and_assembles_in_one_compiled_program(caplog):
