@@ -8,6 +8,7 @@ from __future__ import annotations
 import tomllib
 import zipfile
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -542,6 +543,16 @@ def test_unchanged_embedded_files_load_and_the_reference_is_current():
     )
 
 
+def _planetary_with(where, value):
+    """The embedded planetary parameters with one value replaced by ``eqx.tree_at`` (no __check_init__)."""
+    return eqx.tree_at(where, pm.default_params(), value)
+
+
+def _moving_load_with(where, value):
+    """The embedded ring-moving-load parameters with one value replaced by ``eqx.tree_at``."""
+    return eqx.tree_at(where, rml.default_params(), value)
+
+
 @pytest.mark.parametrize(
     "call, pattern",
     [
@@ -557,6 +568,29 @@ def test_unchanged_embedded_files_load_and_the_reference_is_current():
         (lambda p: gp.default_params().replace(bogus=1.0), "unknown gear-pair parameter"),
         (lambda p: gp.build("params"), "`p` must be GearPairParams"),
         (lambda p: pm.build("params"), "`p` must be PlanetaryParams"),
+        # values set with eqx.tree_at (sweeps, design variables) skip __check_init__; build checks them
+        (lambda p: pm.build(_planetary_with(lambda q: q.ring.thickness, -0.1)), "`ring.thickness` must be"),
+        (
+            lambda p: pm.build(_planetary_with(lambda q: q.ring.youngs_modulus, np.nan)),
+            "`ring.youngs_modulus`",
+        ),
+        (
+            lambda p: pm.build(_planetary_with(lambda q: q.ring.k_support_radial, np.full(5, 1e9))),
+            r"`ring.k_support_radial` must be a scalar or have shape \(6,\)",
+        ),
+        (lambda p: pm.build(_planetary_with(lambda q: q.ring_pitch_radius, -0.5)), "`ring_pitch_radius`"),
+        (
+            lambda p: pm.build(_planetary_with(lambda q: q.mesh.sun_planet, 0.0)),
+            "`mesh.sun_planet_stiffness`",
+        ),
+        (lambda p: rml.build(_moving_load_with(lambda q: q.ring.density, -1.0)), "`ring.density` must be"),
+        (lambda p: rml.build(_moving_load_with(lambda q: q.carrier_speed, 0.0)), "`carrier_speed` must be"),
+        (lambda p: rml.build("params"), "`p` must be RingMovingLoadParams"),
+        (
+            lambda p: bb.build(eqx.tree_at(lambda q: q.planet_mass, bb.default_params(), -1.0)),
+            "`planet_mass` must be",
+        ),
+        (lambda p: bb.build("params"), "`params` must be BackToBackParams"),
     ],
     ids=[
         "pm override",
@@ -571,6 +605,16 @@ def test_unchanged_embedded_files_load_and_the_reference_is_current():
         "replace unknown",
         "gp build",
         "pm build",
+        "pm tree_at rim thickness",
+        "pm tree_at modulus",
+        "pm tree_at bolt count",
+        "pm tree_at pitch radius",
+        "pm tree_at mesh stiffness",
+        "rml tree_at ring density",
+        "rml tree_at speed",
+        "rml build",
+        "bb tree_at planet mass",
+        "bb build",
     ],  # fmt: skip
 )
 def test_loader_and_builder_arguments_are_checked(call, pattern, tmp_path):

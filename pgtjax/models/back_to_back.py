@@ -795,7 +795,10 @@ def build_model(
     ``motor``: include the motor shaft (speed-driven bench); without it the train has a free rigid rotation.
     ``damping``: Eq. 21 (else C = 0). ``loads``: arm torque, motor rotor angle and damping of the rigid rotation.
     """
+    if params is not None and not isinstance(params, BackToBackParams):
+        raise ValueError(f"`params` must be BackToBackParams (back_to_back.load_params), got {params!r}")
     p = default_params() if params is None else params
+    validate(p)  # again: values set with eqx.tree_at bypass __check_init__
     if contacts not in ("hertz", "linear"):
         raise ValueError(f"`contacts` must be 'hertz' or 'linear'; got {contacts!r}")
     M = mass_matrix(p)

@@ -61,6 +61,7 @@ from .._modal import symmetric_eigen
 from .._system import Contacts, System, check_count
 from .._validate import check_range
 from .ring import RingParams, ring_dof_names, ring_interpolation, ring_matrices, ring_nodal_inverse
+from .ring import validate as validate_ring
 
 
 class Body(eqx.Module):
@@ -378,6 +379,10 @@ def validate(p: PlanetaryParams) -> None:
         check_range(name, value, **bounds)
     if p.mesh.harmonics < 0:
         raise ValueError(f"`mesh.harmonics` must be >= 0, got {p.mesh.harmonics}")
+    check_range("ring_pitch_radius", p.ring_pitch_radius, lo=0.0, lo_closed=False, unit="m")
+    # the ring's own checks again: a design variable or a sweep sets ring values with eqx.tree_at, which
+    # bypasses RingParams.__check_init__; names are the attribute paths such code uses (ring.thickness)
+    validate_ring(p.ring, prefix="ring.")
 
 
 # --------------------------------------------------------------------------------------------- layout

@@ -167,33 +167,7 @@ class RingParams(eqx.Module):
         self.rotary_inertia = bool(rotary_inertia)
 
     def __check_init__(self):
-        # values (counts and node indices are converted and checked in __init__); traced values pass
-        check_range("radius", self.radius, lo=0.0, lo_closed=False, unit="m")
-        check_range("thickness", self.thickness, lo=0.0, lo_closed=False, unit="m")
-        check_range("face_width", self.face_width, lo=0.0, lo_closed=False, unit="m")
-        check_range("youngs_modulus", self.youngs_modulus, lo=0.0, lo_closed=False, unit="Pa")
-        check_range("density", self.density, lo=0.0, lo_closed=False, unit="kg/m^3")
-        check_range("tooth_mass", self.tooth_mass, lo=0.0, lo_closed=True, unit="kg")
-        check_range("tooth_inertia", self.tooth_inertia, lo=0.0, lo_closed=True, unit="kg m^2")
-        check_range("k_support_radial", self.k_support_radial, lo=0.0, lo_closed=True, unit="N/m")
-        check_range("k_support_tangential", self.k_support_tangential, lo=0.0, lo_closed=True, unit="N/m")
-        check_range("k_support_torsional", self.k_support_torsional, lo=0.0, lo_closed=True, unit="N m/rad")
-        if not any(isinstance(x, jax.core.Tracer) for x in (self.thickness, self.radius)):
-            h, r = float(self.thickness), float(self.radius)
-        else:
-            h = r = None
-        if h is not None and h >= 2.0 * r:
-            raise ValueError(f"`thickness` must be < 2 * radius = {2.0 * r:g} m, got {h}")
-        for name, val in (
-            ("k_support_radial", self.k_support_radial),
-            ("k_support_tangential", self.k_support_tangential),
-            ("k_support_torsional", self.k_support_torsional),
-        ):
-            shape = np.shape(val)
-            if shape not in ((), (len(self.support_nodes),)):
-                raise ValueError(
-                    f"`{name}` must be a scalar or have shape ({len(self.support_nodes)},) (one per support), got {shape}"
-                )
+        validate(self)
 
     # -- derived quantities -------------------------------------------------------------------------
     @property
@@ -215,6 +189,38 @@ class RingParams(eqx.Module):
     def n_dof(self) -> int:
         """Number of ring DOFs, 3 L."""
         return 3 * self.n_elements
+
+
+def validate(r: RingParams, prefix: str = "") -> None:
+    """``ValueError`` naming the parameter (``prefix`` + attribute name, e.g. ``ring.thickness``) and its
+    range; counts and node indices are converted and checked in ``RingParams.__init__``, traced values pass.
+    Also called by the models that hold a ring, since ``eqx.tree_at`` bypasses ``__check_init__``."""
+    check_range(f"{prefix}radius", r.radius, lo=0.0, lo_closed=False, unit="m")
+    check_range(f"{prefix}thickness", r.thickness, lo=0.0, lo_closed=False, unit="m")
+    check_range(f"{prefix}face_width", r.face_width, lo=0.0, lo_closed=False, unit="m")
+    check_range(f"{prefix}youngs_modulus", r.youngs_modulus, lo=0.0, lo_closed=False, unit="Pa")
+    check_range(f"{prefix}density", r.density, lo=0.0, lo_closed=False, unit="kg/m^3")
+    check_range(f"{prefix}tooth_mass", r.tooth_mass, lo=0.0, lo_closed=True, unit="kg")
+    check_range(f"{prefix}tooth_inertia", r.tooth_inertia, lo=0.0, lo_closed=True, unit="kg m^2")
+    check_range(f"{prefix}k_support_radial", r.k_support_radial, lo=0.0, lo_closed=True, unit="N/m")
+    check_range(f"{prefix}k_support_tangential", r.k_support_tangential, lo=0.0, lo_closed=True, unit="N/m")
+    check_range(f"{prefix}k_support_torsional", r.k_support_torsional, lo=0.0, lo_closed=True, unit="N m/rad")
+    if not any(isinstance(x, jax.core.Tracer) for x in (r.thickness, r.radius)):
+        h, radius = float(r.thickness), float(r.radius)
+        if h >= 2.0 * radius:
+            raise ValueError(
+                f"`{prefix}thickness` must be < 2 * {prefix}radius = {2.0 * radius:g} m, got {h}"
+            )
+    for name, val in (
+        ("k_support_radial", r.k_support_radial),
+        ("k_support_tangential", r.k_support_tangential),
+        ("k_support_torsional", r.k_support_torsional),
+    ):
+        shape = np.shape(val)
+        if shape not in ((), (len(r.support_nodes),)):
+            raise ValueError(
+                f"`{prefix}{name}` must be a scalar or have shape ({len(r.support_nodes)},) (one per support), got {shape}"
+            )
 
 
 def ring_element_matrices(p: RingParams):

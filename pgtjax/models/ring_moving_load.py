@@ -72,6 +72,7 @@ from .ring import (
     ring_matrices,
     ring_nodal_inverse,
 )
+from .ring import validate as validate_ring
 
 __all__ = [
     "RingMovingLoadParams",
@@ -174,30 +175,7 @@ class RingMovingLoadParams(eqx.Module):
         self.n_loads = int(n_loads)
 
     def __check_init__(self):
-        # values; traced values (a model built inside jit/grad/vmap) pass
-        check_range("carrier_speed", self.carrier_speed, lo=0.0, lo_closed=False, unit="rad/s")
-        check_range("mean_force", self.mean_force, unit="N")
-        check_range("force_amplitude", self.force_amplitude, lo=0.0, unit="N")
-        check_range("mesh_frequency_ratio", self.mesh_frequency_ratio, lo=0.0)
-        check_range("noise_intensity", self.noise_intensity, lo=0.0, unit="N sqrt(s)")
-        check_range(
-            "pressure_angle", self.pressure_angle, lo=0.0, hi=math.pi / 2, hi_closed=False, unit="rad"
-        )
-        check_range("initial_angle", self.initial_angle, unit="rad")
-        check_range("rayleigh_mass", self.rayleigh_mass, lo=0.0, unit="1/s")
-        check_range("rayleigh_stiffness", self.rayleigh_stiffness, lo=0.0, unit="s")
-        if np.shape(self.noise_intensity) != (self.n_loads,):
-            raise ValueError(
-                f"`noise_intensity` must be a scalar or have shape ({self.n_loads},) (one per load), "
-                f"got {np.shape(self.noise_intensity)}"
-            )
-        if self.modal_damping_ratio is not None:
-            check_range("modal_damping_ratio", self.modal_damping_ratio, lo=0.0)
-            if np.shape(self.modal_damping_ratio) not in ((), (self.ring.n_dof,)):
-                raise ValueError(
-                    f"`modal_damping_ratio` must be a scalar or have shape ({self.ring.n_dof},) "
-                    f"(one per ring mode), got {np.shape(self.modal_damping_ratio)}"
-                )
+        validate(self)
 
     def replace(self, **changes) -> RingMovingLoadParams:
         """A copy with some fields changed (the result is validated again)."""
@@ -386,6 +364,34 @@ def _reduction(p: RingMovingLoadParams, n_modes: int | None) -> _Reduction:
     )
 
 
+def validate(p: RingMovingLoadParams) -> None:
+    """``ValueError`` naming the parameter and its range (concrete values; traced values pass). Called by
+    ``__check_init__`` and again by :func:`build`, since ``eqx.tree_at`` bypasses ``__check_init__``; the
+    ring's values are named ``ring.<attribute>``."""
+    validate_ring(p.ring, prefix="ring.")
+    check_range("carrier_speed", p.carrier_speed, lo=0.0, lo_closed=False, unit="rad/s")
+    check_range("mean_force", p.mean_force, unit="N")
+    check_range("force_amplitude", p.force_amplitude, lo=0.0, unit="N")
+    check_range("mesh_frequency_ratio", p.mesh_frequency_ratio, lo=0.0)
+    check_range("noise_intensity", p.noise_intensity, lo=0.0, unit="N sqrt(s)")
+    check_range("pressure_angle", p.pressure_angle, lo=0.0, hi=math.pi / 2, hi_closed=False, unit="rad")
+    check_range("initial_angle", p.initial_angle, unit="rad")
+    check_range("rayleigh_mass", p.rayleigh_mass, lo=0.0, unit="1/s")
+    check_range("rayleigh_stiffness", p.rayleigh_stiffness, lo=0.0, unit="s")
+    if np.shape(p.noise_intensity) != (p.n_loads,):
+        raise ValueError(
+            f"`noise_intensity` must be a scalar or have shape ({p.n_loads},) (one per load), "
+            f"got {np.shape(p.noise_intensity)}"
+        )
+    if p.modal_damping_ratio is not None:
+        check_range("modal_damping_ratio", p.modal_damping_ratio, lo=0.0)
+        if np.shape(p.modal_damping_ratio) not in ((), (p.ring.n_dof,)):
+            raise ValueError(
+                f"`modal_damping_ratio` must be a scalar or have shape ({p.ring.n_dof},) "
+                f"(one per ring mode), got {np.shape(p.modal_damping_ratio)}"
+            )
+
+
 def build(p: RingMovingLoadParams | None = None, *, n_modes: int | None = None) -> System:
     """The ch. 6 system (Eq. 6.27) as a :class:`pgtjax.System` (differentiable in every array leaf of ``p``;
     ``None``: the embedded defaults).
@@ -396,7 +402,10 @@ def build(p: RingMovingLoadParams | None = None, *, n_modes: int | None = None) 
     :func:`observables`. ``load`` and ``noise_input`` are ``equinox.Module`` callables of t;
     ``spectral_density`` = 1 / (2 pi) (unit white noises W_n).
     """
+    if p is not None and not isinstance(p, RingMovingLoadParams):
+        raise ValueError(f"`p` must be RingMovingLoadParams (ring_moving_load.load_params), got {p!r}")
     p = default_params() if p is None else p
+    validate(p)
     _check_n_modes(p, n_modes)
     red = _reduction(p, n_modes)
     loads = MovingLoads(p, ring_nodal_inverse(p.ring))
