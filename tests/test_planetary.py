@@ -3,6 +3,7 @@ option against Lin & Parker's published table, elastic -> rigid convergence, MC 
 
 import copy
 import dataclasses
+import functools
 import json
 import logging
 import math
@@ -252,42 +253,56 @@ def test_never_losing_contact_mc_within_three_standard_errors_of_recursion():
     )
 
 
+RING_DESIGN = jnp.array([0.128, 1.362e10])  # rim thickness (m), bolt radial stiffness (N/m)
+
+
+def _ring_response(x, save_every: int, checkpoint: bool):
+    """std of ring node 1's radial displacement (between two bolts) and of the ring-planet 1 meshing force
+    after 30 steps of SL + recursion on a 12-element ring, as functions of ``x`` = (rim thickness, bolt radial
+    stiffness); the same times whatever ``save_every``."""
+    base = small_params(n_elements=12)
+    lay = pm.layout(base)
+    ring = eqx.tree_at(
+        lambda r: (r.thickness, r.radius, r.k_support_radial),
+        base.ring,
+        (x[0], base.ring_pitch_radius + x[0] / 2, x[1]),
+    )
+    p = eqx.tree_at(lambda q: q.ring, base, ring)
+    r = pg.solve_moments(
+        pm.build(p),
+        dt=0.0027,
+        n_steps=30,
+        save_every=save_every,
+        rtol=1e-13,
+        checkpoint=checkpoint,
+        initial_covariance=pm.wind_filter_stationary_covariance(p, lay),
+    )
+    node = lay.ring_start + 3 * 1  # radial DOF of ring node 1 (bolts at the even nodes)
+    return jnp.stack([r.std_u[-1, node], r.force_std[-1, r.contact("ring_planet1")]])
+
+
+@functools.partial(jax.jit, static_argnums=(1, 2))
+def _ring_response_and_jacobian(x, save_every: int, checkpoint: bool):
+    """:func:`_ring_response` and its reverse-mode Jacobian (quantity, parameter) in one compiled program,
+    shared by the two tests below (compilation dominates them). One reverse pass per quantity in a loop:
+    ``jax.jacrev`` vmaps them, a batched program that takes several times as long to compile."""
+    values, pullback = jax.vjp(lambda y: _ring_response(y, save_every, checkpoint), x)
+    (jacobian,) = jax.lax.map(pullback, jnp.eye(values.shape[0], dtype=values.dtype))
+    return values, jacobian
+
+
 def test_gradients_wrt_rim_thickness_and_support_stiffness_match_finite_differences():
     """d std(radial displacement of ring node 1, between two bolts) and d std(ring-planet 1 meshing force) /
     d(rim thickness, bolt radial stiffness) through SL + recursion, against central differences (relative
     step 1e-3: round-off of the per-step fixed point dominates below 1e-4)."""
-    import equinox as eqx
-
-    base = small_params(n_elements=12)
-    lay = pm.layout(base)
-    node = lay.ring_start + 3 * 1  # radial DOF of ring node 1 (bolts at the even nodes)
-
-    def response(x):
-        thickness, support = x
-        ring = eqx.tree_at(
-            lambda r: (r.thickness, r.radius, r.k_support_radial),
-            base.ring,
-            (thickness, base.ring_pitch_radius + thickness / 2, support),
-        )
-        p = eqx.tree_at(lambda q: q.ring, base, ring)
-        r = pg.solve_moments(
-            pm.build(p),
-            dt=0.0027,
-            n_steps=30,
-            save_every=30,
-            rtol=1e-13,
-            initial_covariance=pm.wind_filter_stationary_covariance(p, lay),
-        )
-        return jnp.stack([r.std_u[-1, node], r.force_std[-1, r.contact("ring_planet1")]])
-
-    x = jnp.array([0.128, 1.362e10])
-    jac = jax.jacrev(response)(x)  # (quantity, parameter)
+    x = RING_DESIGN
+    _, jac = _ring_response_and_jacobian(x, 3, False)
     assert jac.dtype == jnp.float64 and bool(jnp.all(jac != 0))
     for i in range(2):
         h = float(x[i]) * 1e-3
         e = jnp.zeros(2).at[i].set(h)
-        fd = (response(x + e) - response(x - e)) / (2 * h)
-        np.testing.assert_allclose(np.asarray(jac[:, i]), np.asarray(fd), rtol=1e-5)
+        plus, minus = (_ring_response_and_jacobian(x + d, 3, False)[0] for d in (e, -e))
+        np.testing.assert_allclose(np.asarray(jac[:, i]), np.asarray((plus - minus) / (2 * h)), rtol=1e-5)
 
 
 def test_gradient_independent_of_save_interval_checkpointing_and_mode():
@@ -295,38 +310,16 @@ def test_gradient_independent_of_save_interval_checkpointing_and_mode():
     policy) instead of recomputing them: the gradient must not depend on how the run is split into saved
     blocks, on whether blocks are rematerialized at all, nor differ from forward mode. (A consistency check
     of the reverse-mode plumbing; correctness against finite differences is the test above.)"""
-    import equinox as eqx
-
-    base = small_params(n_elements=12)
-    lay = pm.layout(base)
-    node = lay.ring_start + 3 * 1  # radial DOF of ring node 1
-
-    def response(x, save_every, checkpoint):
-        ring = eqx.tree_at(
-            lambda r: (r.thickness, r.radius, r.k_support_radial),
-            base.ring,
-            (x[0], base.ring_pitch_radius + x[0] / 2, x[1]),
-        )
-        p = eqx.tree_at(lambda q: q.ring, base, ring)
-        p0 = pm.wind_filter_stationary_covariance(p, lay)
-        r = pg.solve_moments(
-            pm.build(p),
-            dt=0.0027,
-            n_steps=6,
-            save_every=save_every,
-            rtol=1e-13,
-            checkpoint=checkpoint,
-            initial_covariance=p0,
-        )
-        return r.std_u[-1, node]  # the same time whatever the save interval
-
-    x = jnp.array([0.128, 1.362e10])
-    want = jax.grad(response)(x, 3, False)
-    assert want.dtype == jnp.float64 and bool(jnp.all(want != 0))
+    x = RING_DESIGN
+    _, want = _ring_response_and_jacobian(x, 3, False)  # compiled by the test above when run with it
     # each variant is a program of its own (~30 s of compilation on 2 cores): every factor changes once
     # against `want`, which is neither split finer nor rematerialized nor forward mode
-    np.testing.assert_allclose(jax.grad(response)(x, 1, True), want, rtol=1e-9)  # split, rematerialized
-    np.testing.assert_allclose(jax.jacfwd(response)(x, 3, True), want, rtol=1e-9)  # forward, rematerialized
+    _, split = _ring_response_and_jacobian(x, 1, True)  # split, rematerialized
+    np.testing.assert_allclose(split, want, rtol=1e-9)
+    forward = jax.jit(jax.jacfwd(_ring_response), static_argnums=(1, 2))(
+        x, 3, True
+    )  # forward, rematerialized
+    np.testing.assert_allclose(forward, want, rtol=1e-9)
 
 
 def test_build_checks_values_in_python_and_assembles_in_one_compiled_program(caplog):
