@@ -1,20 +1,9 @@
 import os
-import shutil
-import tempfile
 
 import pytest
 
 # check the package's jaxtyping annotations (shapes, float64) while the tests run: set before pgtjax is imported
 os.environ["PGTJAX_TYPECHECK"] = "1"
-
-# JAX's persistent compilation cache, in a folder of this run (removed at its end) unless one is set already:
-# compilation is most of the suite's time, and a program compiled by one pytest-xdist worker, notebook kernel
-# or CLI subprocess is then loaded by the others instead of compiled again, and by the same worker after
-# `_release_compiled_programs` dropped it from memory. Set before JAX is imported; workers, kernels and
-# subprocesses inherit it. (Whole suite on 2 cores, 2026-11-27: 3,246 s of CPU against ~3,470 s without.)
-_RUN_CACHE = None
-if not os.environ.get("JAX_COMPILATION_CACHE_DIR"):
-    _RUN_CACHE = os.environ["JAX_COMPILATION_CACHE_DIR"] = tempfile.mkdtemp(prefix="pgtjax-tests-jit-cache-")
 
 import jax  # noqa: E402
 
@@ -22,12 +11,6 @@ jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_rank_promotion", "raise")
 
 import pgtjax  # noqa: E402,F401
-
-
-def pytest_unconfigure(config):
-    """Remove this run's compilation cache (the process that made it: the controller under pytest-xdist)."""
-    if _RUN_CACHE is not None:
-        shutil.rmtree(_RUN_CACHE, ignore_errors=True)
 
 
 @pytest.fixture(autouse=True, scope="module")

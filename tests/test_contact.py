@@ -69,7 +69,7 @@ def test_energy_coefficients_match_quadrature(mu_b, sigma_b):
     "mu_b,sigma_b", [(-1.0, 0.5), (0.0, 1.0), (0.5, 0.3), (1.5, 1.0), (3.0, 0.2), (0.0, 5.0)]
 )
 def test_energy_criterion_is_the_minimizer_of_the_potential_error(mu_b, sigma_b):
-    """Direct minimization of E[(P(mu+y) - P(mu) - k_e y^2/2 - f_0 y)^2] over (k_e, f_0), y ~ N(0, sigma^2).
+    """The minimizer of E[(P(mu+y) - P(mu) - k_e y^2/2 - f_0 y)^2] over (k_e, f_0), y ~ N(0, sigma^2).
 
     The error is linear in (k_e, f_0), so its mean square is a quadratic whose minimizer solves the normal
     equations: with y = sigma z and g(z) = P(mu + sigma z) - P(mu), and E[z^3] = 0, E[z^4] = 3, they decouple

@@ -226,7 +226,7 @@ COSTS = [pd.SupportStiffness(), pd.RimMass()]
 
 def test_every_objective_and_cost_gradient_matches_central_differences():
     # one simulation, every built-in objective and cost of it, and one compiled program for the values and
-    # their reverse-mode Jacobian (the differences below reuse its values: compilation dominates this test).
+    # their reverse-mode Jacobian (the differences below call the same program: compilation dominates this test).
     # The problem's value, a fixed combination of these, would be a second simulation in the same program;
     # its gradient is checked against the exact one on the two-DOF chain (test_gradient_at_a_bound_...).
     problem = small_problem(OBJECTIVES[0], COSTS)

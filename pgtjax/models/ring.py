@@ -54,6 +54,7 @@ from pgtjax.models import curved_beam as cb
 
 __all__ = [
     "RingParams",
+    "validate",
     "ring_element_matrices",
     "ring_matrices",
     "ring_dof_names",
@@ -195,8 +196,8 @@ def validate(r: RingParams, prefix: str = "") -> None:
     """``ValueError`` naming the parameter (``prefix`` + attribute name, e.g. ``ring.thickness``) and its
     range; counts and node indices are converted and checked in ``RingParams.__init__``, traced values pass.
     Also called by the models that hold a ring, since ``eqx.tree_at`` bypasses ``__check_init__``."""
-    check_range(f"{prefix}radius", r.radius, lo=0.0, lo_closed=False, unit="m")
     check_range(f"{prefix}thickness", r.thickness, lo=0.0, lo_closed=False, unit="m")
+    check_range(f"{prefix}radius", r.radius, lo=0.0, lo_closed=False, unit="m")
     check_range(f"{prefix}face_width", r.face_width, lo=0.0, lo_closed=False, unit="m")
     check_range(f"{prefix}youngs_modulus", r.youngs_modulus, lo=0.0, lo_closed=False, unit="Pa")
     check_range(f"{prefix}density", r.density, lo=0.0, lo_closed=False, unit="kg/m^3")
@@ -205,7 +206,8 @@ def validate(r: RingParams, prefix: str = "") -> None:
     check_range(f"{prefix}k_support_radial", r.k_support_radial, lo=0.0, lo_closed=True, unit="N/m")
     check_range(f"{prefix}k_support_tangential", r.k_support_tangential, lo=0.0, lo_closed=True, unit="N/m")
     check_range(f"{prefix}k_support_torsional", r.k_support_torsional, lo=0.0, lo_closed=True, unit="N m/rad")
-    if not any(isinstance(x, jax.core.Tracer) for x in (r.thickness, r.radius)):
+    # (a model built by the planetary train derives the radius from the thickness, which makes this hold)
+    if not any(isinstance(x, jax.core.Tracer) or np.ndim(x) for x in (r.thickness, r.radius)):
         h, radius = float(r.thickness), float(r.radius)
         if h >= 2.0 * radius:
             raise ValueError(

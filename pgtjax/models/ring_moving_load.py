@@ -76,6 +76,7 @@ from .ring import validate as validate_ring
 
 __all__ = [
     "RingMovingLoadParams",
+    "validate",
     "MovingLoads",
     "build",
     "observables",
@@ -380,7 +381,7 @@ def validate(p: RingMovingLoadParams) -> None:
     check_range("rayleigh_stiffness", p.rayleigh_stiffness, lo=0.0, unit="s")
     if np.shape(p.noise_intensity) != (p.n_loads,):
         raise ValueError(
-            f"`noise_intensity` must be a scalar or have shape ({p.n_loads},) (one per load), "
+            f"`noise_intensity` must have shape ({p.n_loads},) (one per load; the constructor broadcasts a scalar), "
             f"got {np.shape(p.noise_intensity)}"
         )
     if p.modal_damping_ratio is not None:
