@@ -165,6 +165,28 @@ class TimeAverage(NamedTuple):
     n_times: int  # saved times averaged (the window's, trimmed to whole batches)
 
 
+def every_nth_save(result: MomentResult, n: int) -> MomentResult:
+    """``result`` at every ``n``-th saved time (first included). The per-block solver diagnostics
+    (``iterations``, ``residual``, ``converged``) are reduced over the ``n`` blocks merged into each, so that
+    a step that did not converge is not dropped with its block."""
+    if (len(result.times) - 1) % n:
+        raise ValueError(f"{len(result.times) - 1} saved blocks cannot be merged by {n}")
+    out = jax.tree.map(lambda a: a[::n], result)
+
+    def merged(a, reduce):
+        return jnp.concatenate([a[:1], reduce(a[1:].reshape(-1, n, *a.shape[1:]), axis=1)])
+
+    return eqx.tree_at(
+        lambda r: (r.iterations, r.residual, r.converged),
+        out,
+        (
+            merged(result.iterations, jnp.max),
+            merged(result.residual, jnp.max),
+            merged(result.converged, jnp.all),
+        ),
+    )
+
+
 def _gaussian_gap_probability(mean, std, clearance):
     """P(|delta| < b) for delta ~ N(mean, std^2), elementwise; a deterministic delta (std = 0) gives 0 or 1."""
     from jax.scipy.special import ndtr

@@ -188,6 +188,43 @@ def test_monte_carlo_check_agrees_with_the_exact_variance():
     assert abs(opt["improvement"] - exact * check["designs"]["start"]["sl"]) < 4 * opt["improvement_se"]
 
 
+def test_monte_carlo_check_takes_sl_from_the_response_run_at_its_own_save_interval(monkeypatch):
+    """The check's SL is the response's own run (saved every step: the program the problem's normalization
+    compiled) at every 10th save, not a run compiled for the check's save interval; it equals a run saved there
+    directly. From rest, so that the moments change along the horizon and a wrong grid shows."""
+    from pgtjax.design._problem import _moments_saved_every
+
+    base = chain_problem(0.01, n_steps=40)
+    response = pd.Response(build=chain_system, dt=0.05, n_steps=40)  # zero initial covariance
+    problem = pd.DesignProblem(base.space, response, base.objective, base.costs, normalize=False)
+    assert problem.response.save_every == 1
+    params = problem.space.params(problem.space.initial())
+    system, merged = _moments_saved_every(problem.response, params, 10)
+    _, direct = problem.response.moments(params, save_every=10)
+    assert merged.times.shape == (5,) and merged.std_u.dtype == jnp.float64
+    assert float(merged.std_u[-1, 0]) > 2 * float(merged.std_u[1, 0]) > 0  # the moments still grow
+    for got, want in zip(jax.tree.leaves(merged), jax.tree.leaves(direct), strict=True):
+        np.testing.assert_allclose(np.asarray(got), np.asarray(want), rtol=1e-12, atol=0)
+    # and monte_carlo_check runs SL at the response's own interval
+    intervals, moments = [], pd.Response.moments
+
+    def recorded(self, params, *, save_every=None, throw=True):
+        intervals.append(save_every)
+        return moments(self, params, save_every=save_every, throw=throw)
+
+    monkeypatch.setattr(pd.Response, "moments", recorded)
+    check = pd.monte_carlo_check(
+        problem,
+        {"start": problem.space.initial()},
+        n_samples=20,
+        batches=2,
+        key=jax.random.key(0),
+        save_every=10,
+    )
+    assert intervals == [None]
+    assert check["designs"]["start"]["sl"] == float(problem.objective(merged, system, problem.names))
+
+
 # ------------------------------------------------------------------ gradients on a small planetary train
 
 

@@ -322,6 +322,22 @@ def test_gradient_independent_of_save_interval_checkpointing_and_mode():
     np.testing.assert_allclose(forward, want, rtol=1e-9)
 
 
+def test_models_differing_only_in_their_bolts_share_one_compiled_solver():
+    """The bolts enter the stiffness matrix only: the system and the contact-point observables of a support-count
+    sweep hold no copy of the (static) support nodes, so every variant has the same compiled solver's key
+    (static structure, leaf shapes, dtypes and weak types). Before, the sweep of `pgtjax run` compiled SL for each count."""
+    from pgtjax.studies import planetary as study
+
+    variants = study.support_variants(small_params(), (3, 6))
+    keys = []
+    for q in variants.values():
+        held = (pm.build(q), study.contact_point_observables(q))
+        leaves, structure = jax.tree.flatten(held)
+        keys.append((structure, [jax.typeof(x) for x in leaves]))  # shape, dtype and weak type
+    assert [len(q.ring.support_nodes) for q in variants.values()] == [3, 6]
+    assert keys[0] == keys[1]
+
+
 def test_build_checks_values_in_python_and_assembles_in_one_compiled_program(caplog):
     """A value set with ``eqx.tree_at`` skips the loader's checks: ``build`` still refuses it, in Python. The
     matrices are then assembled by one compiled program, reused by every value of one shape; op by op, two

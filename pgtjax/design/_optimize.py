@@ -337,11 +337,9 @@ def pareto_front(
 ) -> list[dict]:
     """Optima of ``problem`` for each cost weight in ``weights`` (one cost: a list of numbers; several: a list
     of weight vectors), each started from ``z0`` (default: the base design; an optimum found already is a
-    good start), then all evaluated in one compiled call (:func:`pgtjax.design.evaluate`). Returns one
-    dict per weight, sorted as given: ``weight``, ``response``, ``costs`` (in their units), ``converged``,
-    ``iterations``, ``reason``, ``z``. ``optimize_options`` go to :func:`optimize`."""
-    from ._problem import evaluate
-
+    good start). Returns one dict per weight, sorted as given: ``weight``, ``response`` and ``costs`` (in
+    their units, as the optimum's last history entry records them), ``converged``, ``iterations``,
+    ``reason``, ``z``. ``optimize_options`` go to :func:`optimize`."""
     optimizer = default_optimizer() if optimizer is None else optimizer
     runs = []
     for w in weights:
@@ -355,19 +353,16 @@ def pareto_front(
         runs.append((w, r))
         if say is not None:
             say(f"front: cost weight {w}: {r.history[-1]['iteration']} iterations, {r.reason}")
-    if not runs:
-        return []
-    # one compiled call, in this process alone: each process of a distributed job holds its own optima
-    terms = evaluate(problem, jnp.stack([jnp.asarray(r.z) for _, r in runs]), distributed=False)
+    # the last entry holds the optimum's response and costs: evaluating them again compiled a program of its own
     return [
         dict(
             weight=w,
-            response=float(resp),
-            costs=np.asarray(c).tolist(),
+            response=r.history[-1]["response"],
+            costs=list(r.history[-1]["costs"]),
             converged=r.converged,
             iterations=r.history[-1]["iteration"],
             reason=r.reason,
             z=np.asarray(r.z).tolist(),
         )
-        for (w, r), resp, c in zip(runs, terms.response, terms.costs)
+        for w, r in runs
     ]

@@ -24,6 +24,7 @@ from .._parallel import (
     raise_if_others_refused,
     warn_if_lapack_batches_can_hang,
 )
+from .._results import every_nth_save
 from .._system import check_count, validate_time_grid
 from ._objectives import AbstractCost, AbstractObjective, Names, _series, as_objective, check_costs
 from ._variables import DesignSpace
@@ -383,6 +384,16 @@ def check_samples(n_samples, batches) -> tuple[int, int]:
     return n_samples, batches
 
 
+def _moments_saved_every(response: Response, params, save_every: int):
+    """SL of ``response`` saved every ``save_every`` steps: from the response's own run (the program that the
+    problem's normalization compiled already) where its save interval divides ``save_every``, else a run of its
+    own."""
+    if save_every % response.save_every:
+        return response.moments(params, save_every=save_every)
+    system, result = response.moments(params)
+    return system, every_nth_save(result, save_every // response.save_every)
+
+
 def monte_carlo_check(
     problem: DesignProblem,
     designs: dict,
@@ -424,7 +435,7 @@ def monte_carlo_check(
             values.append(float(problem.objective(result, system, problem.names)))
             batch_curves.append([np.asarray(_series(result, problem.names, q, "std")) for q in series])
         per_batch[name] = np.asarray(values)
-        system, result = problem.response.moments(params, save_every=save_every)
+        system, result = _moments_saved_every(problem.response, params, save_every)
         sl[name] = float(problem.objective(result, system, problem.names))
         stacked = np.asarray(batch_curves)  # (batches, quantity, time)
         for i, q in enumerate(series):

@@ -60,7 +60,14 @@ from .._contact import Backlash
 from .._modal import symmetric_eigen
 from .._system import Contacts, System, check_count
 from .._validate import check_range
-from .ring import RingParams, ring_dof_names, ring_interpolation, ring_matrices, ring_nodal_inverse
+from .ring import (
+    RingParams,
+    ring_dof_names,
+    ring_interpolation,
+    ring_matrices,
+    ring_nodal_inverse,
+    without_supports,
+)
 from .ring import validate as validate_ring
 
 
@@ -489,7 +496,9 @@ class ContactDirections(eqx.Module):
     with the planets around the elastic ring (contact angle ``omega_c t + psi_n``, Eq. 3.14)."""
 
     constant: jax.Array  # (n_dof, 2N) lumped parts
-    params: PlanetaryParams
+    params: (
+        PlanetaryParams  # its ring without the bolts (models.ring.without_supports), which G does not read
+    )
     lay: Layout
     # the ring elements' shape-function inverse (6, 6), independent of t: formed with the system so that a
     # time loop (and its reverse pass) does not refactorize it at every step. Like ``constant`` it is derived
@@ -517,6 +526,8 @@ def contact_directions(p: PlanetaryParams, lay: Layout) -> ContactDirections:
             g = g.at[lay.ring_start : lay.ring_start + 3].add(rigid_ring_part(p, p.planet_angles()[k]))
         cols.append(g)
     nodal_inverse = ring_nodal_inverse(p.ring) if p.ring_model == "elastic" else None
+    # the bolts enter K only: without them, designs that differ in their bolts share one compiled solver
+    p = eqx.tree_at(lambda q: q.ring, p, without_supports(p.ring))
     return ContactDirections(jnp.stack(cols, axis=1), p, lay, nodal_inverse)
 
 

@@ -40,6 +40,7 @@ SI units: m, kg, N, rad, Pa, Hz.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from functools import partial
 
@@ -62,6 +63,7 @@ __all__ = [
     "support_stiffness_matrix",
     "tooth_mass_matrix",
     "ring_nodal_inverse",
+    "without_supports",
     "ring_shape_at",
     "ring_interpolation",
     "ring_load_vector",
@@ -190,6 +192,16 @@ class RingParams(eqx.Module):
     def n_dof(self) -> int:
         """Number of ring DOFs, 3 L."""
         return 3 * self.n_elements
+
+
+def without_supports(p: RingParams) -> RingParams:
+    """``p`` without its bolts (no support nodes, zero support stiffnesses): all that the rim's shape functions
+    (:func:`ring_shape_at`, :func:`ring_interpolation`) read. Objects that interpolate the rim at every time step
+    hold this copy: the support nodes are static, so a copy with them would make models that differ only in
+    their bolts (a support-count sweep) compile a solver each."""
+    return dataclasses.replace(
+        p, support_nodes=(), k_support_radial=0.0, k_support_tangential=0.0, k_support_torsional=0.0
+    )
 
 
 def validate(r: RingParams, prefix: str = "") -> None:

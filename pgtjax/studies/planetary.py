@@ -29,11 +29,11 @@ from .._linearization import solve_moments
 from .._modal import modal_analysis
 from .._montecarlo import check_options as check_monte_carlo_options
 from .._montecarlo import monte_carlo
-from .._results import MomentResult, MonteCarloResult, save_results
+from .._results import MomentResult, MonteCarloResult, every_nth_save, save_results
 from .._summary import write_summary
 from .._system import Observables, check_count
 from ..models import planetary as pm
-from ..models.ring import ring_interpolation, ring_nodal_inverse
+from ..models.ring import ring_interpolation, ring_nodal_inverse, without_supports
 
 # Thesis node 3 (1-based) is our 0-based ring node 2.
 FIGURE_DOFS = (("ring_node2_tangential", "m"), ("sun_u", "m"), ("carrier_u", "m"), ("planet1_eta", "m"))
@@ -60,28 +60,6 @@ class PlanetaryStudy:
         return every_nth_save(self.sl_result(criterion), self.settings["sl_refine"])
 
 
-def every_nth_save(result: MomentResult, n: int) -> MomentResult:
-    """``result`` at every ``n``-th saved time (first included). The per-block solver diagnostics
-    (``iterations``, ``residual``, ``converged``) are reduced over the ``n`` blocks merged into each, so that
-    a step that did not converge is not dropped with its block."""
-    if (len(result.times) - 1) % n:
-        raise ValueError(f"{len(result.times) - 1} saved blocks cannot be merged by {n}")
-    out = jax.tree.map(lambda a: a[::n], result)
-
-    def merged(a, reduce):
-        return jnp.concatenate([a[:1], reduce(a[1:].reshape(-1, n, *a.shape[1:]), axis=1)])
-
-    return eqx.tree_at(
-        lambda r: (r.iterations, r.residual, r.converged),
-        out,
-        (
-            merged(result.iterations, jnp.max),
-            merged(result.residual, jnp.max),
-            merged(result.converged, jnp.all),
-        ),
-    )
-
-
 def carrier_period(p: pm.PlanetaryParams) -> float:
     """T_c = 2 pi / omega_c (s)."""
     return float(2.0 * np.pi / p.mesh.carrier_speed)
@@ -92,7 +70,8 @@ class _ContactPointMatrix(eqx.Module):
     models of equal shape (a second run, a rim-thickness sweep) reuse one compiled solver, where a closure
     would be a new static function, compiled anew, each time."""
 
-    ring: pm.RingParams  # the elastic ring with its centre radius derived (PlanetaryParams.elastic_ring)
+    # the elastic ring with its centre radius derived, without its bolts (without_supports)
+    ring: pm.RingParams
     inverse: jax.Array
     carrier_speed: jax.Array  # rad/s
     psi: float = eqx.field(static=True)  # rad, the planet's angle
@@ -107,7 +86,7 @@ class _ContactPointMatrix(eqx.Module):
 def contact_point_observables(p: pm.PlanetaryParams, planet: int = 0) -> Observables:
     """Ring displacement (inward radial, tangential; m) at the moving contact point of a planet (Fig. 3.9)."""
     lay = pm.layout(p)
-    ring = p.elastic_ring  # derived and inverted once, not at every time step
+    ring = without_supports(p.elastic_ring)  # derived and inverted once, not at every time step
     matrix = _ContactPointMatrix(
         ring,
         ring_nodal_inverse(ring),
