@@ -496,9 +496,8 @@ class ContactDirections(eqx.Module):
     with the planets around the elastic ring (contact angle ``omega_c t + psi_n``, Eq. 3.14)."""
 
     constant: jax.Array  # (n_dof, 2N) lumped parts
-    params: (
-        PlanetaryParams  # its ring without the bolts (models.ring.without_supports), which G does not read
-    )
+    # its ring without the bolts (models.ring.without_supports), which G does not read
+    params: PlanetaryParams
     lay: Layout
     # the ring elements' shape-function inverse (6, 6), independent of t: formed with the system so that a
     # time loop (and its reverse pass) does not refactorize it at every step. Like ``constant`` it is derived
