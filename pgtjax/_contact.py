@@ -406,22 +406,31 @@ class Backlash(ContactLaw):
     def force_moments(self, mu, sigma, k, b):
         upper, lower = mu - b, -b - mu
         z_up, z_lo = _standardize(upper, sigma), _standardize(lower, sigma)
-        mean_up = _positive_part_mean(upper, sigma, z_up)
-        mean_lo = _positive_part_mean(lower, sigma, z_lo)
-        var = _positive_part_variance(upper, sigma, z_up) + _positive_part_variance(lower, sigma, z_lo)
+        # Phi(z) and Phi(-z) of both flanks from one erfc evaluation (not 1 - Phi: the tails keep their
+        # relative accuracy) and phi(z) = phi(-z) from one exp: each special function is a large expansion in
+        # the compiled program of every SL run and its gradient
+        z_up, z_lo = jnp.broadcast_arrays(z_up, z_lo)
+        cdf = _cdf(jnp.stack([z_up, z_lo, -z_up, -z_lo]))
+        pdf = _pdf(jnp.stack([z_up, z_lo]))
+        mean_up = _positive_part_mean(upper, sigma, z_up, cdf[0], pdf[0])
+        mean_lo = _positive_part_mean(lower, sigma, z_lo, cdf[1], pdf[1])
+        var = _positive_part_variance(upper, sigma, z_up, cdf[0], cdf[2], pdf[0]) + _positive_part_variance(
+            lower, sigma, z_lo, cdf[1], cdf[3], pdf[1]
+        )
         # A = (delta-b)+ and B = (-b-delta)+ are never both nonzero: Cov(A, B) = -E[A] E[B].
         var = var + 2.0 * mean_up * mean_lo
         return k * (mean_up - mean_lo), k * safe_sqrt(var)
 
 
-def _positive_part_variance(offset, sigma, z):
-    """Var[X+] for X ~ N(offset, sigma^2), without cancellation for z >> 0.
+def _positive_part_variance(offset, sigma, z, cdf, cdf_neg, pdf):
+    """Var[X+] for X ~ N(offset, sigma^2), without cancellation for z >> 0, given ``Phi(z)``, ``Phi(-z)`` and
+    ``phi(z)``.
 
     For z > 0 use X+ = X + X- (X- = (-X)+, small): Var = s^2 - E[(X-)^2] - 2 m E[X-] - E[X-]^2.
     """
-    neg_mean = _positive_part_mean(-offset, sigma, -z)
-    neg_second = sigma * sigma * _second_moment_ratio(-z)
+    neg_mean = _positive_part_mean(-offset, sigma, -z, cdf_neg, pdf)
+    neg_second = sigma * sigma * _second_moment_ratio(-z, cdf_neg, pdf)
     var_pos_z = sigma * sigma - neg_second - 2.0 * offset * neg_mean - neg_mean**2
-    pos_mean = _positive_part_mean(offset, sigma, z)
-    var_neg_z = sigma * sigma * _second_moment_ratio(z) - pos_mean**2
+    pos_mean = _positive_part_mean(offset, sigma, z, cdf, pdf)
+    var_neg_z = sigma * sigma * _second_moment_ratio(z, cdf, pdf) - pos_mean**2
     return jnp.maximum(jnp.where(z > 0.0, var_pos_z, var_neg_z), 0.0)

@@ -59,6 +59,22 @@ def at_time(value: ArrayOrFunction, t) -> jax.Array:
     return value(t) if callable(value) else value
 
 
+@eqx.filter_jit
+def _fields_at_compiled(fields: tuple, t) -> tuple:
+    return tuple(at_time(f, t) for f in fields)
+
+
+def fields_at(fields: tuple, t) -> tuple:
+    """``at_time`` of each field at ``t``, for the checks before a run: from one compiled program, reused by
+    every model of the same structure. Evaluated operation by operation, a model's time functions cost a
+    compilation per operation and shape the first time (seconds for the planetary model). Where the fields
+    cannot be traced, they are evaluated eagerly, so that any error is the one the model's own code raises."""
+    try:
+        return _fields_at_compiled(tuple(fields), t)
+    except Exception:  # noqa: BLE001 - the eager evaluation below raises (or passes) as the code itself does
+        return tuple(at_time(f, t) for f in fields)
+
+
 class FourierSeries(eqx.Module):
     """``k(t) = k0 + sum_j [a_j sin(j w t + phase) + c_j cos(j w t + phase)]``, thesis Eq. 4.11 / Eq. 3.1.
 
@@ -134,13 +150,12 @@ class Observables(eqx.Module):
         """``ValueError`` unless ``C(t0)`` is a finite (n_obs, n_dof) matrix and ``d(t0)`` a finite (n_obs,)
         vector (what a solver checks before it runs)."""
         k = len(self.names)
-        c = self(jnp.asarray(t0, jnp.float64))
+        c, d = fields_at((self.__call__, self.shift), jnp.asarray(t0, jnp.float64))
         if jnp.shape(c) != (k, n_dof):
             raise ValueError(
                 f"Observables `matrix` must have shape ({k}, {n_dof}) (n_obs, n_dof), got {jnp.shape(c)}"
             )
         _check_finite("Observables matrix", c)
-        d = self.shift(jnp.asarray(t0, jnp.float64))
         if jnp.shape(d) != (k,):
             raise ValueError(
                 f"Observables `offset` must have shape ({k},) (one per observable), got {jnp.shape(d)}"
@@ -378,15 +393,18 @@ def validate_system(system: System, t0: float = 0.0, *, time_name: str = "t0") -
             raise ValueError(
                 f"`mass` must be positive definite (all eigenvalues > 0), smallest eigenvalue is {smallest!r}"
             )
-    for name, field, shape in (
-        ("stiffness", system.stiffness, (n, n)),
-        ("damping", system.damping, (n, n)),
-        ("load", system.load, (n,)),
+    t = jnp.asarray(t0, dtype=jnp.float64)
+    contacts = () if system.contacts is None else (system.contacts.direction, system.contacts.inputs)
+    stiffness, damping, load, b, *contact_fields = fields_at(
+        (system.stiffness, system.damping, system.load, system.noise_input, *contacts), t
+    )
+    for name, value, shape in (
+        ("stiffness", stiffness, (n, n)),
+        ("damping", damping, (n, n)),
+        ("load", load, (n,)),
     ):
-        value = at_time(field, jnp.asarray(t0, dtype=jnp.float64))
         _check_shape(name, value, shape)
         _check_finite(name, value)
-    b = at_time(system.noise_input, jnp.asarray(t0, dtype=jnp.float64))
     if jnp.ndim(b) != 2 or jnp.shape(b)[0] != n:
         raise ValueError(
             f"`noise_input` must have shape ({n}, n_noise) (one row per DOF), got {jnp.shape(b)}"
@@ -403,10 +421,10 @@ def validate_system(system: System, t0: float = 0.0, *, time_name: str = "t0") -
         _check_finite("clearance", c.clearance)
         if _is_concrete(c.clearance) and np.any(np.asarray(c.clearance) < 0.0):
             raise ValueError(f"`clearance` (half-backlash b) must be >= 0 m, got {np.asarray(c.clearance)}")
-        g = system.contact_direction(jnp.asarray(t0, dtype=jnp.float64))
+        g, raw_inputs = contact_fields
         _check_shape("contact direction", g, (n, nc))
         _check_finite("contact direction", g)
-        inputs = c.law.check_inputs(at_time(c.inputs, jnp.asarray(t0, dtype=jnp.float64)), nc)
+        inputs = c.law.check_inputs(raw_inputs, nc)
         for leaf in jax.tree.leaves(inputs):
             _check_finite("contact stiffness" if isinstance(c.law, Backlash) else "contact-law inputs", leaf)
         for leaf in jax.tree.leaves(c.law):
@@ -597,9 +615,8 @@ def _first_order_spectrum(system: System, t0):
     contacts closed; None if ``A`` is not finite, :data:`_TRACED` if a field evaluates to a traced value. The
     tolerance, ``10 sqrt(eps ||A||_1)``, is the size of the rounding of a defective (rigid-body) pair."""
     t = jnp.asarray(t0, jnp.float64)
-    fields = [at_time(system.stiffness, t), at_time(system.damping, t)]
-    if system.n_contacts:
-        fields += [system.contact_direction(t), system.contact_stiffness(t)]
+    contacts = (system.contact_direction, system.contact_stiffness) if system.n_contacts else ()
+    fields = fields_at((system.stiffness, system.damping, *contacts), t)
     if any(isinstance(x, jax.core.Tracer) for x in fields):
         return _TRACED
     k, c, *contacts = (np.asarray(x) for x in fields)

@@ -314,6 +314,22 @@ def test_a_stiffness_function_that_turns_nan_is_named_with_its_time():
         sl(system, n_steps=1000, save_every=10)
 
 
+def test_a_time_function_that_cannot_be_traced_is_checked_as_written():
+    """The checks evaluate time functions in a compiled program; one that only works on concrete numbers
+    (NumPy on ``t``) is evaluated as written instead, so the checks pass or fail exactly as its own code does."""
+    from pgtjax._system import fields_at, validate_system
+
+    system = backlash_oscillator()
+    k = np.asarray(system.stiffness)
+    eager = eqx.tree_at(lambda s: s.stiffness, system, lambda t: k * (1.0 + 0.1 * np.sin(float(t))))
+    validate_system(eager, 0.5)
+    (value,) = fields_at((eager.stiffness,), jnp.asarray(0.5))
+    np.testing.assert_array_equal(np.asarray(value), k * (1.0 + 0.1 * np.sin(0.5)))
+    broken = eqx.tree_at(lambda s: s.stiffness, system, lambda t: k * float("nan") * float(t))
+    with pytest.raises(ValueError, match="stiffness"):
+        validate_system(broken, 0.5)
+
+
 def test_contact_loss_probability_with_the_wrong_clearances():
     result = sl()
     np.testing.assert_allclose(

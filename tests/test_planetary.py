@@ -353,6 +353,35 @@ def test_build_checks_values_in_python_and_assembles_in_one_compiled_program(cap
     assert not np.allclose(systems[0].stiffness, systems[1].stiffness)  # the values did reach the program
 
 
+def test_checks_before_a_run_evaluate_the_time_functions_in_one_compiled_program(caplog):
+    """The checks a solver makes before it runs (the system's fields, its stability, the observables at t0)
+    evaluate the model's time functions in one compiled program per check, reused by every model of the same
+    structure; op by op, a model of a new size compiled dozens of small kernels first (seconds). The values
+    are those of the time functions evaluated directly."""
+    from pgtjax._system import check_stability, fields_at, validate_system
+    from pgtjax.design import ring_mesh_observables
+
+    p = small_params(n_elements=30)  # a ring size no other test builds: nothing compiled for it yet
+    system, observables = pm.build(p), ring_mesh_observables(p)
+    with jax.log_compiles(True), caplog.at_level(logging.WARNING):
+        validate_system(system, 0.0)
+        check_stability(system, 0.0, horizon=0.1)
+        observables.check(system.n_dof, 0.0)
+    compiled = [r.getMessage() for r in caplog.records if "Finished XLA compilation" in r.getMessage()]
+    assert sum("_fields_at_compiled" in m for m in compiled) == 3 and len(compiled) <= 12, compiled
+    t = jnp.asarray(0.013)
+    direction, inputs, c_matrix = fields_at(
+        (system.contacts.direction, system.contacts.inputs, observables.matrix), t
+    )
+    for got, want in (
+        (direction, system.contact_direction(t)),
+        (inputs, system.contacts.inputs(t)),
+        (c_matrix, observables(t)),
+    ):
+        assert got.dtype == jnp.float64
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-15 * float(jnp.max(jnp.abs(want))))
+
+
 def test_bad_parameters_raise():
     with pytest.raises(ValueError, match="ring_model"):
         small_params().__class__  # noqa: B018
