@@ -356,7 +356,8 @@ class Backlash(ContactLaw):
             raise ValueError(
                 f"Backlash takes the mesh stiffness (one array) as its input, got {type(inputs).__name__}"
             )
-        if not isinstance(k, jax.core.Tracer) and bool(jnp.any(k < 0.0)):
+        # NumPy on a concrete k: a jnp comparison inside a caller's trace would be traced itself
+        if not isinstance(k, jax.core.Tracer) and bool(np.any(np.asarray(k) < 0.0)):
             raise ValueError(f"`contact stiffness` must be >= 0 N/m, got {np.asarray(k)}")
         return k
 

@@ -60,19 +60,38 @@ def at_time(value: ArrayOrFunction, t) -> jax.Array:
 
 
 @eqx.filter_jit
-def _fields_at_compiled(fields: tuple, t) -> tuple:
-    return tuple(at_time(f, t) for f in fields)
+def _modules_at_compiled(modules: tuple, t) -> tuple:
+    return tuple(m(t) for m in modules)
+
+
+def _compilable(field) -> bool:
+    """A module whose leaves hold no plain function: a plain function would be a static argument of the
+    compiled program, compiled again for every new function object and kept alive by its cache (with any traced
+    value it closes over)."""
+    if not (callable(field) and isinstance(field, eqx.Module)):
+        return False
+    return not any(callable(x) and not isinstance(x, eqx.Module) for x in jax.tree.leaves(field))
 
 
 def fields_at(fields: tuple, t) -> tuple:
-    """``at_time`` of each field at ``t``, for the checks before a run: from one compiled program, reused by
-    every model of the same structure. Evaluated operation by operation, a model's time functions cost a
-    compilation per operation and shape the first time (seconds for the planetary model). Where the fields
-    cannot be traced, they are evaluated eagerly, so that any error is the one the model's own code raises."""
-    try:
-        return _fields_at_compiled(tuple(fields), t)
-    except Exception:  # noqa: BLE001 - the eager evaluation below raises (or passes) as the code itself does
-        return tuple(at_time(f, t) for f in fields)
+    """``at_time`` of each field at ``t``, for the checks before a run. Fields that are equinox modules (the
+    models' time functions, and bound methods of modules) are evaluated in one compiled program, reused by
+    every model of the same structure: evaluated operation by operation, they cost a compilation per
+    operation and shape the first time (seconds for the planetary model). Arrays are returned as they are,
+    and plain functions (and modules that cannot be traced) are evaluated as written, so that the checks see
+    concrete values and raise the model's own errors as before."""
+    fields = tuple(fields)
+    slots = [i for i, f in enumerate(fields) if _compilable(f)]
+    values = [None if i in slots else at_time(f, t) for i, f in enumerate(fields)]
+    if slots:
+        modules = tuple(fields[i] for i in slots)
+        try:
+            evaluated = _modules_at_compiled(modules, t)
+        except Exception:  # noqa: BLE001 - evaluated as written below, which raises (or passes) as the code does
+            evaluated = tuple(m(t) for m in modules)
+        for i, value in zip(slots, evaluated):
+            values[i] = value
+    return tuple(values)
 
 
 class FourierSeries(eqx.Module):
@@ -150,7 +169,7 @@ class Observables(eqx.Module):
         """``ValueError`` unless ``C(t0)`` is a finite (n_obs, n_dof) matrix and ``d(t0)`` a finite (n_obs,)
         vector (what a solver checks before it runs)."""
         k = len(self.names)
-        c, d = fields_at((self.__call__, self.shift), jnp.asarray(t0, jnp.float64))
+        c, d = fields_at((self, self.shift), jnp.asarray(t0, jnp.float64))
         if jnp.shape(c) != (k, n_dof):
             raise ValueError(
                 f"Observables `matrix` must have shape ({k}, {n_dof}) (n_obs, n_dof), got {jnp.shape(c)}"

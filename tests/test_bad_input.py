@@ -328,6 +328,18 @@ def test_a_time_function_that_cannot_be_traced_is_checked_as_written():
     broken = eqx.tree_at(lambda s: s.stiffness, system, lambda t: k * float("nan") * float(t))
     with pytest.raises(ValueError, match="stiffness"):
         validate_system(broken, 0.5)
+    # under jit: an array field is still checked as the concrete array it is, and a function closing over a
+    # traced value is evaluated in the caller's trace (nothing compiled apart keeps or leaks it)
+    not_finite = eqx.tree_at(lambda s: s.stiffness, system, jnp.full_like(system.stiffness, jnp.nan))
+    with pytest.raises(ValueError, match="stiffness"):
+        jax.jit(lambda t: validate_system(not_finite, t) or t)(0.5)
+
+    def closed_over(a):
+        validate_system(eqx.tree_at(lambda s: s.stiffness, system, lambda t: a * k), 0.0)
+        return a
+
+    with jax.checking_leaks():
+        assert float(jax.jit(closed_over)(2.0)) == 2.0
 
 
 def test_contact_loss_probability_with_the_wrong_clearances():

@@ -361,17 +361,25 @@ def test_checks_before_a_run_evaluate_the_time_functions_in_one_compiled_program
     from pgtjax._system import check_stability, fields_at, validate_system
     from pgtjax.design import ring_mesh_observables
 
+    def check(p):
+        system, observables = pm.build(p), ring_mesh_observables(p)
+        with jax.log_compiles(True), caplog.at_level(logging.WARNING):
+            caplog.clear()
+            validate_system(system, 0.0)
+            check_stability(system, 0.0, horizon=0.1)
+            observables.check(system.n_dof, 0.0)
+        compiled = [r.getMessage() for r in caplog.records if "Finished XLA compilation" in r.getMessage()]
+        return system, observables, [m for m in compiled if "_modules_at_compiled" in m], compiled
+
     p = small_params(n_elements=30)  # a ring size no other test builds: nothing compiled for it yet
-    system, observables = pm.build(p), ring_mesh_observables(p)
-    with jax.log_compiles(True), caplog.at_level(logging.WARNING):
-        validate_system(system, 0.0)
-        check_stability(system, 0.0, horizon=0.1)
-        observables.check(system.n_dof, 0.0)
-    compiled = [r.getMessage() for r in caplog.records if "Finished XLA compilation" in r.getMessage()]
-    assert sum("_fields_at_compiled" in m for m in compiled) == 3 and len(compiled) <= 12, compiled
+    system, observables, checks, compiled = check(p)
+    assert len(checks) == 3 and len(compiled) <= 12, compiled
+    # another design of the same structure: the three programs are reused
+    _, _, checks, _ = check(eqx.tree_at(lambda q: q.ring.thickness, p, jnp.asarray(0.11, jnp.float64)))
+    assert checks == []
     t = jnp.asarray(0.013)
     direction, inputs, c_matrix = fields_at(
-        (system.contacts.direction, system.contacts.inputs, observables.matrix), t
+        (system.contacts.direction, system.contacts.inputs, observables), t
     )
     for got, want in (
         (direction, system.contact_direction(t)),
