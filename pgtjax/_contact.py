@@ -410,7 +410,6 @@ class Backlash(ContactLaw):
         # Phi(z) and Phi(-z) of both flanks from one erfc evaluation (not 1 - Phi: the tails keep their
         # relative accuracy) and phi(z) = phi(-z) from one exp: each special function is a large expansion in
         # the compiled program of every SL run and its gradient
-        z_up, z_lo = jnp.broadcast_arrays(z_up, z_lo)
         cdf = _cdf(jnp.stack([z_up, z_lo, -z_up, -z_lo]))
         pdf = _pdf(jnp.stack([z_up, z_lo]))
         mean_up = _positive_part_mean(upper, sigma, z_up, cdf[0], pdf[0])

@@ -634,8 +634,8 @@ def _first_order_spectrum(system: System, t0):
     contacts closed; None if ``A`` is not finite, :data:`_TRACED` if a field evaluates to a traced value. The
     tolerance, ``10 sqrt(eps ||A||_1)``, is the size of the rounding of a defective (rigid-body) pair."""
     t = jnp.asarray(t0, jnp.float64)
-    contacts = (system.contact_direction, system.contact_stiffness) if system.n_contacts else ()
-    fields = fields_at((system.stiffness, system.damping, *contacts), t)
+    contact_fields = (system.contact_direction, system.contact_stiffness) if system.n_contacts else ()
+    fields = fields_at((system.stiffness, system.damping, *contact_fields), t)
     if any(isinstance(x, jax.core.Tracer) for x in fields):
         return _TRACED
     k, c, *contacts = (np.asarray(x) for x in fields)
