@@ -151,14 +151,17 @@ def _law_derivatives(law, criterion: str, z, data: _StepData, wrt):
     def linearize(mu, sigma, *rest):
         return law.linearize(mu, sigma, jax.tree.unflatten(treedef, rest[:-1]), rest[-1], criterion)
 
-    def along(name):
-        tangent = tuple(jnp.ones_like(a) if n == name else jnp.zeros_like(a) for n, a in zip(names, args))
-        return jax.jvp(linearize, args, tangent)[1]
-
-    out = []
-    for name in wrt:
-        out.append([along(("inputs", j)) for j in range(len(leaves))] if name == "inputs" else along(name))
-    return out
+    per_name = {"inputs": [("inputs", j) for j in range(len(leaves))]}
+    directions = [d for name in wrt for d in per_name.get(name, [name])]
+    # one forward-mode pass batched over the unit tangents: the compiled program holds one copy of the law's
+    # derivative, not one per direction (smaller to compile, and faster: 2026-11-28, docs/performance.md)
+    tangents = [
+        jnp.stack([jnp.ones_like(a) if n == d else jnp.zeros_like(a) for d in directions])
+        for n, a in zip(names, args)
+    ]
+    batched = jax.vmap(lambda *t: jax.jvp(linearize, args, t)[1])(*tangents)
+    along = iter([jax.tree.map(lambda x, i=i: x[i], batched) for i in range(len(directions))])
+    return [[next(along) for _ in leaves] if name == "inputs" else next(along) for name in wrt]
 
 
 def _jacobian(nc: int, z, terms: _EndTerms, moments: _Moments, data: _StepData, d_mu, d_sigma) -> jax.Array:
@@ -193,15 +196,23 @@ def _evaluate(law, nc: int, criterion: str, z, data: _StepData, with_jacobian: b
         d mean_i / d sigma_j = -D_ij (k_e,sigma_j (mean_j - mu_j) + f_0,sigma_j)
         d sigma_i / d x_j    = -D_ij cov_ji k_e,x_j / sigma_i          (x = mu or sigma; cov symmetric)
 
-    where ``k_e,x`` and ``f_0,x`` are the law's own derivatives (one forward-mode pass each).
+    where ``k_e,x`` and ``f_0,x`` are the law's own derivatives (forward mode, one pass batched over the
+    directions).
     """
     terms = _end_terms(law, nc, criterion, z, data)
     moments = _implied_moments(nc, z, terms, data)
     residual = jnp.concatenate([moments.mean, moments.std]) - z
     if not with_jacobian:
         return residual, terms, None
+    return residual, terms, _residual_jacobian(law, nc, criterion, z, terms, data, moments)
+
+
+def _residual_jacobian(law, nc: int, criterion: str, z, terms: _EndTerms, data: _StepData, moments=None):
+    """``dR/dz`` (2 nc, 2 nc) at ``z`` whose end terms are known (the law's derivatives: two forward-mode
+    passes), as in :func:`_evaluate`."""
+    moments = _implied_moments(nc, z, terms, data) if moments is None else moments
     d_mu, d_sigma = _law_derivatives(law, criterion, z, data, ("mu", "sigma"))
-    return residual, terms, _jacobian(nc, z, terms, moments, data, d_mu, d_sigma)
+    return _jacobian(nc, z, terms, moments, data, d_mu, d_sigma)
 
 
 class _FixedPointInfo(NamedTuple):
@@ -305,38 +316,34 @@ def _solve_fixed_point(system, z0, data, criterion, rtol, max_iter):
     law_const = _stop_gradient(law)  # the iterations are not differentiated: see _implicit_solution
     data_const = jax.lax.stop_gradient(data)
 
-    def evaluate(z, with_jacobian=False):
-        return _evaluate(law_const, nc, criterion, z, data_const, with_jacobian)
+    def evaluate(z):
+        residual, terms, _ = _evaluate(law_const, nc, criterion, z, data_const)
+        return residual, terms
 
     def scaled_norm(r, z):
         scale = jnp.abs(z[:nc]) + z[nc:] + data_const.clearance + 1e-300
         return jnp.max(jnp.abs(r) / jnp.concatenate([scale, scale]))
 
-    def newton_step(z, r, jac):
+    def body(state):
+        # a Newton step from z, whose residual and end terms the state holds: only the Jacobian is formed
+        # here, so none is formed at the converged point, and the map is written once for the first
+        # iteration and the later ones (a smaller program to compile)
+        z, r, terms, it, _ = state
+        jac = _residual_jacobian(law_const, nc, criterion, z, terms, data_const)
         z_newton = z + jnp.linalg.solve(jac, -r)
         z_new = jnp.where(jnp.all(jnp.isfinite(z_newton)), z_newton, z + r)  # fixed-point step as fallback
-        return z_new.at[nc:].set(jnp.maximum(z_new[nc:], 0.0))
-
-    def body(state):
-        # the Jacobian is formed at the start of an iteration, so none is wasted on the converged point
-        z, r, _, it, _ = state
-        _, _, jac = evaluate(z, with_jacobian=True)
-        z_new = newton_step(z, r, jac)
-        r_new, terms_new, _ = evaluate(z_new)
+        z_new = z_new.at[nc:].set(jnp.maximum(z_new[nc:], 0.0))
+        r_new, terms_new = evaluate(z_new)
         return z_new, r_new, terms_new, it + 1, scaled_norm(r_new, z_new)
 
     def cond(state):
         *_, it, err = state
         return (it < max_iter) & (err > rtol)
 
-    # The first iteration is taken outside the loop with the Jacobian formed together with the first
-    # residual (one map evaluation fewer); started from the previous step, it is usually the only one.
+    # started from the previous step's solution, one iteration usually converges
     z0 = jax.lax.stop_gradient(z0)
-    r0, _, jac0 = evaluate(z0, with_jacobian=True)
-    first = scaled_norm(r0, z0) > rtol
-    z1 = jnp.where(first, newton_step(z0, r0, jac0), z0)
-    r1, terms1, _ = evaluate(z1)
-    state = (z1, r1, terms1, first.astype(jnp.int32), scaled_norm(r1, z1))
+    r0, terms0 = evaluate(z0)
+    state = (z0, r0, terms0, jnp.asarray(0, jnp.int32), scaled_norm(r0, z0))
     z_star, _, terms, iters, err = jax.lax.while_loop(cond, body, state)
     # named so that the reverse pass's rematerialization keeps them instead of re-running the iterations
     z_star, terms = checkpoint_name((z_star, terms), _FIXED_POINT_NAME)

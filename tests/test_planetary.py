@@ -254,55 +254,67 @@ def test_never_losing_contact_mc_within_three_standard_errors_of_recursion():
 
 
 RING_DESIGN = jnp.array([0.128, 1.362e10])  # rim thickness (m), bolt radial stiffness (N/m)
+RING_NODE, RING_STEPS = 1, 30  # ring node 1 (between two bolts: they sit at the even nodes), 30 steps of SL
+
+
+def _ring_base():
+    return small_params(n_elements=12)
+
+
+@functools.cache
+def _ring_sensitivities() -> dict:
+    """``studies.planetary.sensitivities`` on a 12-element ring over 30 steps: reverse-mode derivatives and the
+    study's own Richardson-extrapolated central differences. Shared by the gradient tests and the summary's
+    units check, which would otherwise each compile a reverse pass of their own (compilation dominates)."""
+    from pgtjax.studies import planetary as study
+
+    return study.sensitivities(_ring_base(), dt=0.0027, n_steps=RING_STEPS, node=RING_NODE)
+
+
+@functools.cache
+def _ring_equilibrium():
+    return pg.static_equilibrium(pm.build(_ring_base()))
 
 
 def _ring_response(x, save_every: int, checkpoint: bool):
-    """std of ring node 1's radial displacement (between two bolts) and of the ring-planet 1 meshing force
-    after 30 steps of SL + recursion on a 12-element ring, as functions of ``x`` = (rim thickness, bolt radial
-    stiffness); the same times whatever ``save_every``."""
-    base = small_params(n_elements=12)
+    """The quantities of :func:`_ring_sensitivities` written out here: std of ring node 1's radial displacement
+    and of the ring-planet 1 meshing force after 30 steps, as functions of ``x`` = (rim thickness, bolt radial
+    stiffness), from the base design's static equilibrium; the same times whatever ``save_every``."""
+    base = _ring_base()
     lay = pm.layout(base)
-    ring = eqx.tree_at(
-        lambda r: (r.thickness, r.radius, r.k_support_radial),
-        base.ring,
-        (x[0], base.ring_pitch_radius + x[0] / 2, x[1]),
-    )
-    p = eqx.tree_at(lambda q: q.ring, base, ring)
+    p = eqx.tree_at(lambda q: (q.ring.thickness, q.ring.k_support_radial), base, (x[0], x[1]))
     r = pg.solve_moments(
-        pm.build(p),
+        pm.build(p),  # the ring's centre radius follows the thickness
         dt=0.0027,
-        n_steps=30,
+        n_steps=RING_STEPS,
         save_every=save_every,
         rtol=1e-13,
         checkpoint=checkpoint,
+        initial_displacement=_ring_equilibrium(),
         initial_covariance=pm.wind_filter_stationary_covariance(p, lay),
     )
-    node = lay.ring_start + 3 * 1  # radial DOF of ring node 1 (bolts at the even nodes)
+    node = lay.ring_start + 3 * RING_NODE  # radial DOF
     return jnp.stack([r.std_u[-1, node], r.force_std[-1, r.contact("ring_planet1")]])
 
 
 @functools.partial(jax.jit, static_argnums=(1, 2))
-def _ring_response_and_jacobian(x, save_every: int, checkpoint: bool):
-    """:func:`_ring_response` and its reverse-mode Jacobian (quantity, parameter) in one compiled program,
-    shared by the two tests below (compilation dominates them). One reverse pass per quantity in a loop:
-    ``jax.jacrev`` vmaps them, a batched program that took 1.3-1.4 times as long to compile."""
+def _reverse_jacobian(x, save_every: int, checkpoint: bool):
+    """Reverse-mode Jacobian (quantity, parameter) of :func:`_ring_response`, one reverse pass per quantity in
+    a loop: ``jax.jacrev`` vmaps them, a batched program that took 1.3-1.4 times as long to compile."""
     values, pullback = jax.vjp(lambda y: _ring_response(y, save_every, checkpoint), x)
     (jacobian,) = jax.lax.map(pullback, jnp.eye(values.shape[0], dtype=values.dtype))
-    return values, jacobian
+    return jacobian
 
 
 def test_gradients_wrt_rim_thickness_and_support_stiffness_match_finite_differences():
     """d std(radial displacement of ring node 1, between two bolts) and d std(ring-planet 1 meshing force) /
-    d(rim thickness, bolt radial stiffness) through SL + recursion, against central differences (relative
-    step 1e-3: round-off of the per-step fixed point dominates below 1e-4)."""
-    x = RING_DESIGN
-    _, jac = _ring_response_and_jacobian(x, 3, False)
-    assert jac.dtype == jnp.float64 and bool(jnp.all(jac != 0))
-    for i in range(2):
-        h = float(x[i]) * 1e-3
-        e = jnp.zeros(2).at[i].set(h)
-        plus, minus = (_ring_response_and_jacobian(x + d, 3, False)[0] for d in (e, -e))
-        np.testing.assert_allclose(np.asarray(jac[:, i]), np.asarray((plus - minus) / (2 * h)), rtol=1e-5)
+    d(rim thickness, bolt radial stiffness) through SL + recursion (reverse mode, as the study computes them),
+    against Richardson-extrapolated central differences at 1 % and 2 % relative steps."""
+    sens = _ring_sensitivities()
+    jac, fd = np.asarray(sens["gradient"]), np.asarray(sens["central_difference"])
+    assert jac.shape == (2, 2) and np.all(jac != 0)
+    np.testing.assert_allclose(jac, fd, rtol=1e-5)
+    np.testing.assert_allclose(sens["value"], _ring_response(RING_DESIGN, RING_STEPS, True), rtol=1e-12)
 
 
 def test_gradient_independent_of_save_interval_checkpointing_and_mode():
@@ -311,14 +323,12 @@ def test_gradient_independent_of_save_interval_checkpointing_and_mode():
     blocks, on whether blocks are rematerialized at all, nor differ from forward mode. (A consistency check
     of the reverse-mode plumbing; correctness against finite differences is the test above.)"""
     x = RING_DESIGN
-    _, want = _ring_response_and_jacobian(x, 3, False)  # compiled by the test above when run with it
-    # each variant is a program of its own (~30 s of compilation on 2 cores): every factor changes once
-    # against `want`, which is neither split finer nor rematerialized nor forward mode
-    _, split = _ring_response_and_jacobian(x, 1, True)  # split, rematerialized
+    want = np.asarray(_ring_sensitivities()["gradient"])  # reverse, one saved block, rematerialized
+    # each variant is a program of its own (~20-30 s of compilation on 2 cores)
+    split = _reverse_jacobian(x, 1, False)  # split into saved blocks of one step, not rematerialized
+    assert split.dtype == jnp.float64
     np.testing.assert_allclose(split, want, rtol=1e-9)
-    forward = jax.jit(jax.jacfwd(_ring_response), static_argnums=(1, 2))(
-        x, 3, True
-    )  # forward, rematerialized
+    forward = jax.jit(jax.jacfwd(_ring_response), static_argnums=(1, 2))(x, RING_STEPS, True)  # forward
     np.testing.assert_allclose(forward, want, rtol=1e-9)
 
 
@@ -503,7 +513,7 @@ def test_study_grids_outputs_and_symmetry_zero_dofs(tmp_path):
     # every number of summary.json carries its unit (a sweep, the modes and the sensitivities included)
     from pgtjax._summary import missing_units
 
-    sens = study.sensitivities(p, n_steps=12, dt=result.dt)
+    sens = _ring_sensitivities()  # another model's, whose summary section carries the same units
     full = study.summary(result, sweeps=sweeps, modal=study.modal_table(p), sens=sens)
     assert missing_units(full) == [] and missing_units({**full, "bare": 1.0}) == ["bare"]
     thin = full["rim_thickness"]["variants"]["t_r = 100 mm"]["ring_node2_tangential"]
