@@ -240,7 +240,9 @@ class ContactLaw(eqx.Module):
     exist (see :class:`Backlash`). Arguments may carry leading batch axes (``(..., nc)``: samples, quadrature
     nodes), so a parameter field with one entry per contact broadcasts on the last axis. Every method acts
     contact by contact (the coefficients of contact j depend
-    only on contact j's arguments): the SL solver's closed-form Newton Jacobian relies on it.
+    only on contact j's arguments): the SL solver's closed-form Newton Jacobian relies on it. The methods must
+    also work under ``jax.vmap`` (Monte Carlo maps them over samples; SL maps the derivatives of ``linearize``
+    over tangent directions): jax.numpy code does, a ``jax.pure_callback`` needs a ``vmap_method``.
 
     A law whose ``stiffness`` is always either 0 or the stiffness input sets ``on_off_stiffness = True``: Monte
     Carlo then inverts the contact-space Newton Jacobians of contact patterns (all 2^nc of them for few

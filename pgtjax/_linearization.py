@@ -154,7 +154,7 @@ def _law_derivatives(law, criterion: str, z, data: _StepData, wrt):
     per_name = {"inputs": [("inputs", j) for j in range(len(leaves))]}
     directions = [d for name in wrt for d in per_name.get(name, [name])]
     # one forward-mode pass batched over the unit tangents: the compiled program holds one copy of the law's
-    # derivative, not one per direction (smaller to compile, and faster: 2026-11-28, docs/performance.md)
+    # derivative, not one per direction (smaller to compile, no slower: 2026-11-28, docs/performance.md)
     tangents = [
         jnp.stack([jnp.ones_like(a) if n == d else jnp.zeros_like(a) for d in directions])
         for n, a in zip(names, args)
@@ -208,8 +208,8 @@ def _evaluate(law, nc: int, criterion: str, z, data: _StepData, with_jacobian: b
 
 
 def _residual_jacobian(law, nc: int, criterion: str, z, terms: _EndTerms, data: _StepData, moments=None):
-    """``dR/dz`` (2 nc, 2 nc) at ``z`` whose end terms are known (the law's derivatives: two forward-mode
-    passes), as in :func:`_evaluate`."""
+    """``dR/dz`` (2 nc, 2 nc) at ``z`` whose end terms are known (the law's derivatives: one forward-mode
+    pass batched over ``mu`` and ``sigma``), as in :func:`_evaluate`."""
     moments = _implied_moments(nc, z, terms, data) if moments is None else moments
     d_mu, d_sigma = _law_derivatives(law, criterion, z, data, ("mu", "sigma"))
     return _jacobian(nc, z, terms, moments, data, d_mu, d_sigma)
@@ -326,8 +326,8 @@ def _solve_fixed_point(system, z0, data, criterion, rtol, max_iter):
 
     def body(state):
         # a Newton step from z, whose residual and end terms the state holds: only the Jacobian is formed
-        # here, so none is formed at the converged point, and the map is written once for the first
-        # iteration and the later ones (a smaller program to compile)
+        # here, so none is formed at the converged point; the first iteration is the loop's, so the program
+        # holds the map twice (before the loop and here), not four times
         z, r, terms, it, _ = state
         jac = _residual_jacobian(law_const, nc, criterion, z, terms, data_const)
         z_newton = z + jnp.linalg.solve(jac, -r)

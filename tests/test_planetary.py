@@ -325,7 +325,7 @@ def test_gradient_independent_of_save_interval_checkpointing_and_mode():
     x = RING_DESIGN
     want = np.asarray(_ring_sensitivities()["gradient"])  # reverse, one saved block, rematerialized
     # each variant is a program of its own (~20-30 s of compilation on 2 cores)
-    split = _reverse_jacobian(x, 1, False)  # split into saved blocks of one step, not rematerialized
+    split = _reverse_jacobian(x, 3, False)  # split into saved blocks of three steps, not rematerialized
     assert split.dtype == jnp.float64
     np.testing.assert_allclose(split, want, rtol=1e-9)
     forward = jax.jit(jax.jacfwd(_ring_response), static_argnums=(1, 2))(x, RING_STEPS, True)  # forward
