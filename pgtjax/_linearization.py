@@ -58,6 +58,7 @@ from ._results import MomentResult
 from ._system import (
     Observables,
     System,
+    check_checkpoint_blocks,
     check_contact_stiffness_over_time,
     check_initial_covariance,
     check_memory,
@@ -387,6 +388,13 @@ def _contact_state(system, snap: Snapshot, mean, cov):
     return jnp.concatenate([mu, sigma])
 
 
+def _diagonal(a):
+    """The diagonal of a square matrix as a strided slice of its elements: its transpose in reverse mode is a
+    padding that fuses with the sum of the matrix's other cotangents (``jnp.diagonal``'s is a scatter, a pass
+    over a (2n, 2n) array of its own)."""
+    return a.reshape(-1)[:: a.shape[0] + 1]
+
+
 class _Saved(NamedTuple):
     obs_mean: jax.Array
     obs_std: jax.Array
@@ -427,7 +435,7 @@ def _record(system, carry: _Carry, info: _FixedPointInfo, t, observables, cov_in
         obs_mean,
         obs_std,
         carry.mean,
-        jnp.diagonal(carry.cov),
+        _diagonal(carry.cov),
         carry.z,
         carry.lin.k_e if nc else empty,
         carry.lin.f_0 if nc else empty,
@@ -541,9 +549,10 @@ def _quadratic_forms(dx, cov):
     ``(dX P) dX^T``).
 
     The derivative rule refers to ``dX`` and ``P`` only, never to ``dX P``: the checkpointed reverse pass
-    then skips both products when it recomputes the step, and its transpose costs four products of the size
+    then skips both products when it recomputes the step, and its transpose costs three products of the size
     of ``dX P`` or smaller (autodiff of the plain products recomputes both, then transposes each: six).
-    ``P`` symmetric: the recursion keeps it exactly so (each step is symmetrized)."""
+    ``P`` symmetric, and so its tangents: the recursion keeps it exactly so (each step is symmetrized); a
+    cotangent of ``P`` is meaningful up to its antisymmetric part (docs/gradients.md)."""
     a_mat = dx @ cov
     return a_mat @ dx.T, a_mat
 
@@ -553,9 +562,15 @@ def _quadratic_forms_jvp(primals, tangents):
     ddx, dcov = (None if isinstance(t, SymbolicZero) else t for t in tangents)
     d_cov, a_mat = _quadratic_forms(dx, cov)
     dxp = jnp.zeros_like(dx) if ddx is None else ddx @ cov  # d(dX) P
-    da = dxp if dcov is None else dxp + dx @ dcov  # d(dX P)
-    dd = da @ dx.T + dx @ dxp.T  # d(dX P dX^T) = d(dX P) dX^T + dX P d(dX)^T, P = P^T
-    return (d_cov, a_mat), (dd, da)
+    if dcov is None:
+        da, half = dxp, dxp
+    else:
+        dx_dcov = dx @ dcov
+        da, half = dxp + dx_dcov, dxp + 0.5 * dx_dcov  # d(dX P); half of it where dP enters
+    # d(dX P dX^T) = E + E^T with E = (d(dX) P + dX dP / 2) dX^T (P, dP symmetric): one product, so that the
+    # transpose needs one (Dbar + Dbar^T) dX rather than both Dbar dX and Dbar^T dX
+    e_mat = half @ dx.T
+    return (d_cov, a_mat), (e_mat + e_mat.T, da)
 
 
 _quadratic_forms.defjvp(_quadratic_forms_jvp, symbolic_zeros=True)
@@ -663,6 +678,7 @@ def solve_moments(
     max_iter: int = 50,
     throw: bool = True,
     checkpoint: bool = True,
+    checkpoint_blocks: int = 1,
     observables: Observables | None = None,
     covariance_dofs: Sequence[str] | str | None = None,
 ) -> MomentResult:
@@ -694,6 +710,11 @@ def solve_moments(
             products. With ``save_every = 1`` each rematerialized step and its transpose form one loop body;
             longer blocks also stack each step's residuals for the block's reverse loop, which costs more
             (``benchmarks/bench_planetary.py`` times both).
+        checkpoint_blocks: with ``checkpoint``, keep the state once per group of this many saved blocks
+            (1 to ``n_steps / save_every``; default 1, once per block). Reverse mode then recomputes each group's
+            blocks once more (about one more forward run) and keeps their states while it transposes them:
+            memory for about ``n_blocks / k + k`` states (each (2n)^2 numbers) instead of ``n_blocks``, least
+            near ``k = sqrt(n_blocks)``. For gradients of long runs of large models (docs/gradients.md).
         observables: optional :class:`pgtjax.Observables` ``y = C(t) u`` whose mean and standard deviation
             are reported (``mean_obs``, ``std_obs``).
         covariance_dofs: DOF names (or ``"all"``) whose joint covariance of displacements and velocities is
@@ -704,6 +725,9 @@ def solve_moments(
     validate_system(system, t0)
     cov_index = covariance_index(system, covariance_dofs)
     n_steps, save_every = validate_time_grid(dt, n_steps, save_every, t0)
+    checkpoint_blocks = check_checkpoint_blocks(checkpoint_blocks, n_steps // save_every)
+    if checkpoint_blocks > 1 and not checkpoint:
+        raise ValueError("`checkpoint_blocks` > 1 groups rematerialized blocks: it needs `checkpoint=True`")
     check_observables(system, observables, t0)
     n_obs = 0 if observables is None else len(observables.names)
     per_save = 4 * system.n_dof + 6 * system.n_contacts + 2 * n_obs + len(cov_index) ** 2 + 3
@@ -732,6 +756,7 @@ def solve_moments(
         rtol=rtol,
         max_iter=max_iter,
         checkpoint=checkpoint,
+        checkpoint_blocks=checkpoint_blocks,
         observables=observables,
         cov_index=cov_index,
     )
@@ -783,6 +808,7 @@ def _solve_moments_jit(
     rtol,
     max_iter,
     checkpoint,
+    checkpoint_blocks,
     observables,
     cov_index,
 ):
@@ -817,7 +843,14 @@ def _solve_moments_jit(
     names = (_FIXED_POINT_NAME, _COVARIANCE_NAME)
     policy = jax.checkpoint_policies.save_only_these_names(*names) if checkpoint else None
     _, saved = saved_scan(
-        step, record, carry, first, n_blocks=n_blocks, save_every=save_every, remat_policy=policy
+        step,
+        record,
+        carry,
+        first,
+        n_blocks=n_blocks,
+        save_every=save_every,
+        remat_policy=policy,
+        blocks_per_checkpoint=checkpoint_blocks,
     )
     times = t0 + dt * save_every * jnp.arange(n_blocks + 1, dtype=jnp.float64)
     return MomentResult.from_saved(

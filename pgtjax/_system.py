@@ -18,6 +18,7 @@ Units are SI (m, kg, N, s) unless a model says otherwise; a DOF may be an angle 
 
 from __future__ import annotations
 
+import numbers
 import os
 import weakref
 from collections.abc import Callable, Sequence
@@ -519,6 +520,16 @@ def validate_time_grid(dt, n_steps, save_every: int = 1, t0=0.0) -> tuple[int, i
                 "advance; start nearer 0 (shift t0) or take a larger step"
             )
     return n_steps, save_every
+
+
+def check_checkpoint_blocks(k, n_blocks: int, name: str = "checkpoint_blocks") -> int:
+    """``k`` saved blocks per reverse-mode checkpoint: an integer from 1 to ``n_blocks`` (``n_steps /
+    save_every``); returned as a Python int (a static size)."""
+    if isinstance(k, bool) or not isinstance(k, numbers.Integral) or not 1 <= k <= n_blocks:
+        raise ValueError(
+            f"`{name}` must be an integer in [1, {n_blocks}] (the saved blocks, n_steps / save_every), got {k!r}"
+        )
+    return int(k)
 
 
 def check_memory(what: str, n_saved: int, values_per_save: int, knob: str = "save_every") -> None:

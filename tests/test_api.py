@@ -42,6 +42,46 @@ def test_grad_through_sl_matches_central_differences():
     np.testing.assert_allclose(float(jv), float(g[0]), rtol=1e-9)
 
 
+def _std_and_mean(params, checkpoint_blocks, n_steps, save_every):
+    k_mesh, gap = params
+    res = pg.solve_moments(
+        gear_like(k_mesh, gap),
+        dt=2e-3,
+        n_steps=n_steps,
+        save_every=save_every,
+        rtol=1e-14,
+        checkpoint_blocks=checkpoint_blocks,
+    )
+    return jnp.max(res.std_u[:, 1]) + 10.0 * res.mean_delta[-1, 0]
+
+
+def test_grouped_checkpoints_give_the_same_gradient_with_less_memory():
+    """``checkpoint_blocks`` keeps the state once per group of saved blocks: the gradient equals the one with the
+    state kept once per block (a consistency check of the plumbing; the gradient itself is checked against central
+    differences above), also with a group left incomplete, and its compiled reverse pass needs less memory."""
+    p = jnp.array([5.0e4, 0.02])
+    grad = jax.jit(jax.grad(_std_and_mean), static_argnums=(1, 2, 3))
+    want = grad(p, 1, 60, 2)  # 30 saved blocks
+    got = grad(p, 7, 60, 2)  # 4 groups of 7 blocks, 2 blocks left over
+    assert got.dtype == jnp.float64
+    np.testing.assert_allclose(got, want, rtol=1e-12)
+
+    def temporary_bytes(k):
+        return grad.lower(p, k, 400, 1).compile().memory_analysis().temp_size_in_bytes
+
+    # kept per step whatever the grouping: the fixed point's solution and its tangent rule's quantities, here about
+    # twice the 2-DOF model's state; grouped, 40 states are kept instead of 400 (measured: 0.66 of the memory)
+    assert temporary_bytes(20) < 0.8 * temporary_bytes(1)
+
+
+def test_bad_checkpoint_blocks_raise_value_error():
+    for k in (0, 5, 1.5, True):
+        with pytest.raises(ValueError, match=r"checkpoint_blocks.*\[1, 4\]"):
+            pg.solve_moments(gear_like(5e4, 0.02), dt=0.01, n_steps=4, checkpoint_blocks=k)
+    with pytest.raises(ValueError, match="checkpoint=True"):
+        pg.solve_moments(gear_like(5e4, 0.02), dt=0.01, n_steps=4, checkpoint_blocks=2, checkpoint=False)
+
+
 def test_jit_and_vmap_over_a_parameter():
     ks = jnp.array([3.0e4, 5.0e4, 8.0e4])
     batched = jax.vmap(lambda k: final_std((k, 0.02)))(ks)

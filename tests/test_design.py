@@ -48,12 +48,20 @@ def stationary(params, system):
     return jax.scipy.linalg.block_diag(C * jnp.linalg.inv(system.stiffness), C * jnp.diag(1.0 / MASSES))
 
 
-def chain_problem(lam, lower=0.01, upper=100.0, transform="log", k0=(1.0, 3.0), n_steps=20):
+def chain_problem(
+    lam, lower=0.01, upper=100.0, transform="log", k0=(1.0, 3.0), n_steps=20, checkpoint_blocks=1
+):
     space = pd.DesignSpace(
         Chain(jnp.asarray(k0[0]), jnp.asarray(k0[1])),
         [pd.Variable("k1", lower, upper, transform), pd.Variable("k2", lower, upper, transform)],
     )
-    response = pd.Response(build=chain_system, dt=0.05, n_steps=n_steps, initial_covariance=stationary)
+    response = pd.Response(
+        build=chain_system,
+        dt=0.05,
+        n_steps=n_steps,
+        initial_covariance=stationary,
+        checkpoint_blocks=checkpoint_blocks,
+    )
     cost = pd.ParameterCost(fn=lambda p: p.k1 + p.k2, weight=lam, label="k1 + k2", unit="N/m")
     return pd.DesignProblem(space, response, pd.Variance(["q0", "q1"]), [cost], normalize=False)
 
@@ -68,6 +76,20 @@ def test_two_dof_optimum_matches_the_hand_derived_one():
     k1, k2 = np.sqrt(C / lam), np.sqrt(C / (2 * lam))
     np.testing.assert_allclose(result.value, C * (2 / k1 + 1 / k2) / 2 + lam * (k1 + k2), rtol=1e-10)
     assert result.z.dtype == np.float64
+
+
+def test_grouped_checkpoints_leave_the_objective_and_its_gradient_unchanged():
+    """``Response(checkpoint_blocks=k)`` reaches ``solve_moments``: the same value and gradient (the state kept
+    once per 3 saved blocks, 20 blocks: a group left incomplete), and a bad k is refused when the problem is built."""
+    grouped = chain_problem(0.01, checkpoint_blocks=3)
+    z = jnp.array([0.3, -0.2])
+    want, got = (jax.jit(jax.value_and_grad(q.value))(z) for q in (chain_problem(0.01), grouped))
+    assert got[1].dtype == jnp.float64
+    np.testing.assert_allclose(got[0], want[0], rtol=1e-13)
+    np.testing.assert_allclose(got[1], want[1], rtol=1e-12)
+    for k in (0, 21):
+        with pytest.raises(ValueError, match=r"Response.checkpoint_blocks.*\[1, 20\]"):
+            pd.Response(build=chain_system, dt=0.05, n_steps=20, checkpoint_blocks=k)
 
 
 @pytest.mark.parametrize("transform", ["log", "linear", "box"])

@@ -25,7 +25,7 @@ from .._parallel import (
     warn_if_lapack_batches_can_hang,
 )
 from .._results import every_nth_save
-from .._system import check_count, validate_time_grid
+from .._system import check_checkpoint_blocks, check_count, validate_time_grid
 from ._objectives import AbstractCost, AbstractObjective, Names, _series, as_objective, check_costs
 from ._variables import DesignSpace
 
@@ -35,7 +35,9 @@ class Response(eqx.Module):
     ``build(params) -> System``; the mean start at the static equilibrium of that system (``static_start``,
     else at rest at zero); the initial covariance ``initial_covariance(params, system)`` ((2n, 2n), default 0);
     optional ``observables(params) -> Observables``; the horizon ``n_steps`` steps of ``dt`` (s), saved
-    every ``save_every`` steps; SL with ``criterion`` and the per-step tolerance ``rtol``."""
+    every ``save_every`` steps; SL with ``criterion`` and the per-step tolerance ``rtol``; reverse mode keeps the
+    state once per ``checkpoint_blocks`` saved blocks (``solve_moments``'s option: less memory for long runs of
+    large models, for about one more forward pass per gradient)."""
 
     build: Callable = eqx.field(static=True)
     dt: float = eqx.field(static=True)
@@ -46,11 +48,13 @@ class Response(eqx.Module):
     static_start: bool = eqx.field(static=True, default=True)
     criterion: str = eqx.field(static=True, default="force")
     rtol: float = eqx.field(static=True, default=1e-10)
+    checkpoint_blocks: int = eqx.field(static=True, default=1)
 
     def __check_init__(self):
         if not callable(self.build):
             raise ValueError(f"Response `build` must be a function params -> System, got {self.build!r}")
-        validate_time_grid(self.dt, self.n_steps, self.save_every)
+        n_steps, save_every = validate_time_grid(self.dt, self.n_steps, self.save_every)
+        check_checkpoint_blocks(self.checkpoint_blocks, n_steps // save_every, "Response.checkpoint_blocks")
 
     def _start(self, params):
         system = self.build(params)
@@ -73,6 +77,8 @@ class Response(eqx.Module):
             criterion=self.criterion,
             rtol=self.rtol,
             throw=throw,
+            # a run saved at another interval reports; the response's own run is the differentiated one
+            checkpoint_blocks=self.checkpoint_blocks if save_every is None else 1,
         )
         return system, result
 
