@@ -392,6 +392,8 @@ def _diagonal(a):
     """The diagonal of a square matrix as a strided slice of its elements: its transpose in reverse mode is a
     padding that fuses with the sum of the matrix's other cotangents (``jnp.diagonal``'s is a scatter, a pass
     over a (2n, 2n) array of its own)."""
+    if a.ndim != 2 or a.shape[0] != a.shape[1]:
+        raise ValueError(f"_diagonal takes a square matrix, got shape {a.shape}")
     return a.reshape(-1)[:: a.shape[0] + 1]
 
 
@@ -712,9 +714,9 @@ def solve_moments(
             (``benchmarks/bench_planetary.py`` times both).
         checkpoint_blocks: with ``checkpoint``, keep the state once per group of this many saved blocks
             (1 to ``n_steps / save_every``; default 1, once per block). Reverse mode then recomputes each group's
-            blocks once more (about one more forward run) and keeps their states while it transposes them:
-            memory for about ``n_blocks / k + k`` states (each (2n)^2 numbers) instead of ``n_blocks``, least
-            near ``k = sqrt(n_blocks)``. For gradients of long runs of large models (docs/gradients.md).
+            blocks once more (0.7 to 1.5 forward runs more, measured) and keeps their states while it
+            transposes them: memory for about ``n_blocks / k + k`` states (each (2n)^2 numbers; plus the blocks
+            left over after the last whole group) instead of ``n_blocks``, least near ``k = sqrt(n_blocks)``. For gradients of long runs of large models (docs/gradients.md).
         observables: optional :class:`pgtjax.Observables` ``y = C(t) u`` whose mean and standard deviation
             are reported (``mean_obs``, ``std_obs``).
         covariance_dofs: DOF names (or ``"all"``) whose joint covariance of displacements and velocities is
@@ -813,6 +815,8 @@ def _solve_moments_jit(
     cov_index,
 ):
     mean0 = jnp.concatenate([u0, v0])
+    # the recursion and its derivative rules take P symmetric (each step ends symmetrized); so is the start
+    p0 = 0.5 * (p0 + p0.T)
     # K and C constant: the contact-free step operators are formed once per run (and differentiated once)
     prop = integrator.init(system, dt)
     constant_path = prop is not None and system.n_dof > _DENSE_PHI_MAX_DOF

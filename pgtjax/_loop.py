@@ -43,9 +43,13 @@ def saved_scan(
         carry, infos = jax.lax.scan(inner, carry, (jnp.arange(save_every), inputs))
         return carry, record(carry, infos, block_index)
 
+    if blocks_per_checkpoint > 1 and remat_policy is None:
+        raise ValueError(
+            "saved_scan: `blocks_per_checkpoint` > 1 groups rematerialized blocks: it needs a remat_policy"
+        )
     if remat_policy is not None:
         block = jax.checkpoint(block, policy=remat_policy)
-    group = blocks_per_checkpoint if remat_policy is not None else 1
+    group = blocks_per_checkpoint
     n_groups = n_blocks // group
     if group == 1 or n_groups == 0:
         carry, saved = jax.lax.scan(block, carry, jnp.arange(n_blocks))

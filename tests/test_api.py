@@ -74,6 +74,24 @@ def test_grouped_checkpoints_give_the_same_gradient_with_less_memory():
     assert temporary_bytes(20) < 0.8 * temporary_bytes(1)
 
 
+def test_gradient_wrt_the_initial_covariance_is_symmetric_and_matches_central_differences():
+    """The recursion takes P symmetric, so the initial covariance enters as its symmetric part: the gradient with
+    respect to it is a symmetric matrix, and along a symmetric direction it matches central differences."""
+    system = gear_like(5e4, 0.02)
+    p0 = jnp.asarray(np.diag([1e-6, 2e-6, 1e-4, 3e-4]))
+    p0 = p0.at[0, 2].set(5e-6).at[2, 0].set(5e-6)
+
+    def final_std_from(p):
+        return pg.solve_moments(system, dt=2e-3, n_steps=20, initial_covariance=p, rtol=1e-14).std_u[-1, 1]
+
+    g = jax.grad(final_std_from)(p0)
+    assert g.dtype == jnp.float64
+    np.testing.assert_array_equal(g, g.T)
+    direction = jnp.asarray(np.diag([1e-7, 1e-7, 1e-5, 1e-5])).at[1, 3].set(2e-6).at[3, 1].set(2e-6)
+    fd = (final_std_from(p0 + direction) - final_std_from(p0 - direction)) / 2.0
+    np.testing.assert_allclose(float(jnp.sum(g * direction)), float(fd), rtol=1e-5)
+
+
 def test_bad_checkpoint_blocks_raise_value_error():
     for k in (0, 5, 1.5, True):
         with pytest.raises(ValueError, match=r"checkpoint_blocks.*\[1, 4\]"):
