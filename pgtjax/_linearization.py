@@ -714,7 +714,7 @@ def solve_moments(
             (``benchmarks/bench_planetary.py`` times both).
         checkpoint_blocks: with ``checkpoint``, keep the state once per group of this many saved blocks
             (1 to ``n_steps / save_every``; default 1, once per block). Reverse mode then recomputes each group's
-            blocks once more (0.7 to 1.5 forward runs more, measured) and keeps their states while it
+            blocks once more (0.6 to 1.5 forward runs more, measured) and keeps their states while it
             transposes them: memory for about ``n_blocks / k + k`` states (each (2n)^2 numbers; plus the blocks
             left over after the last whole group) instead of ``n_blocks``, least near ``k = sqrt(n_blocks)``. For gradients of long runs of large models (docs/gradients.md).
         observables: optional :class:`pgtjax.Observables` ``y = C(t) u`` whose mean and standard deviation

@@ -37,7 +37,7 @@ class Response(eqx.Module):
     optional ``observables(params) -> Observables``; the horizon ``n_steps`` steps of ``dt`` (s), saved
     every ``save_every`` steps; SL with ``criterion`` and the per-step tolerance ``rtol``; reverse mode keeps the
     state once per ``checkpoint_blocks`` saved blocks (``solve_moments``'s option: less memory for long runs of
-    large models, for 0.7 to 1.5 forward runs more per gradient, measured)."""
+    large models, for 0.6 to 1.5 forward runs more per gradient, measured)."""
 
     build: Callable = eqx.field(static=True)
     dt: float = eqx.field(static=True)
