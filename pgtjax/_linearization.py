@@ -58,8 +58,8 @@ from ._results import MomentResult
 from ._system import (
     Observables,
     System,
-    check_checkpoint_blocks,
     check_contact_stiffness_over_time,
+    check_count,
     check_initial_covariance,
     check_memory,
     check_observables,
@@ -716,7 +716,8 @@ def solve_moments(
             (1 to ``n_steps / save_every``; default 1, once per block). Reverse mode then recomputes each group's
             blocks once more (0.6 to 1.5 forward runs more, measured) and keeps their states while it
             transposes them: memory for about ``n_blocks / k + k`` states (each (2n)^2 numbers; plus the blocks
-            left over after the last whole group) instead of ``n_blocks``, least near ``k = sqrt(n_blocks)``. For gradients of long runs of large models (docs/gradients.md).
+            left over after the last whole group) instead of ``n_blocks``, least near ``k = sqrt(n_blocks)``.
+            For gradients of long runs of large models (docs/gradients.md).
         observables: optional :class:`pgtjax.Observables` ``y = C(t) u`` whose mean and standard deviation
             are reported (``mean_obs``, ``std_obs``).
         covariance_dofs: DOF names (or ``"all"``) whose joint covariance of displacements and velocities is
@@ -727,7 +728,8 @@ def solve_moments(
     validate_system(system, t0)
     cov_index = covariance_index(system, covariance_dofs)
     n_steps, save_every = validate_time_grid(dt, n_steps, save_every, t0)
-    checkpoint_blocks = check_checkpoint_blocks(checkpoint_blocks, n_steps // save_every)
+    blocks = n_steps // save_every
+    checkpoint_blocks = check_count("checkpoint_blocks", checkpoint_blocks, 1, blocks, " (the saved blocks)")
     if checkpoint_blocks > 1 and not checkpoint:
         raise ValueError("`checkpoint_blocks` > 1 groups rematerialized blocks: it needs `checkpoint=True`")
     check_observables(system, observables, t0)

@@ -18,7 +18,6 @@ Units are SI (m, kg, N, s) unless a model says otherwise; a DOF may be an angle 
 
 from __future__ import annotations
 
-import numbers
 import os
 import weakref
 from collections.abc import Callable, Sequence
@@ -453,11 +452,17 @@ def validate_system(system: System, t0: float = 0.0, *, time_name: str = "t0") -
             raise ValueError(f"contact `names` must have {nc} entries, got {len(c.names)}")
 
 
-def check_count(name: str, value, minimum: int = 1) -> int:
-    """``value`` as an int if it is an integer (Python or NumPy; not a bool) >= ``minimum``, else a
-    ``ValueError`` naming ``name`` and the accepted range."""
-    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < minimum:
-        raise ValueError(f"`{name}` must be an integer >= {minimum}, got {value!r}")
+def check_count(name: str, value, minimum: int = 1, maximum: int | None = None, why: str = "") -> int:
+    """``value`` as an int if it is an integer (Python or NumPy; not a bool) from ``minimum`` to ``maximum``
+    (``None``: unbounded), else a ``ValueError`` naming ``name``, the accepted range and ``why`` it is that."""
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, int | np.integer)
+        or value < minimum
+        or (maximum is not None and value > maximum)
+    ):
+        accepted = f">= {minimum}" if maximum is None else f"in [{minimum}, {maximum}]"
+        raise ValueError(f"`{name}` must be an integer {accepted}{why}, got {value!r}")
     return int(value)
 
 
@@ -520,16 +525,6 @@ def validate_time_grid(dt, n_steps, save_every: int = 1, t0=0.0) -> tuple[int, i
                 "advance; start nearer 0 (shift t0) or take a larger step"
             )
     return n_steps, save_every
-
-
-def check_checkpoint_blocks(k, n_blocks: int, name: str = "checkpoint_blocks") -> int:
-    """``k`` saved blocks per reverse-mode checkpoint: an integer from 1 to ``n_blocks`` (``n_steps /
-    save_every``); returned as a Python int (a static size)."""
-    if isinstance(k, bool) or not isinstance(k, numbers.Integral) or not 1 <= k <= n_blocks:
-        raise ValueError(
-            f"`{name}` must be an integer in [1, {n_blocks}] (the saved blocks, n_steps / save_every), got {k!r}"
-        )
-    return int(k)
 
 
 def check_memory(what: str, n_saved: int, values_per_save: int, knob: str = "save_every") -> None:

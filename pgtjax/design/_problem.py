@@ -25,7 +25,7 @@ from .._parallel import (
     warn_if_lapack_batches_can_hang,
 )
 from .._results import every_nth_save
-from .._system import check_checkpoint_blocks, check_count, validate_time_grid
+from .._system import check_count, validate_time_grid
 from ._objectives import AbstractCost, AbstractObjective, Names, _series, as_objective, check_costs
 from ._variables import DesignSpace
 
@@ -54,7 +54,9 @@ class Response(eqx.Module):
         if not callable(self.build):
             raise ValueError(f"Response `build` must be a function params -> System, got {self.build!r}")
         n_steps, save_every = validate_time_grid(self.dt, self.n_steps, self.save_every)
-        check_checkpoint_blocks(self.checkpoint_blocks, n_steps // save_every, "Response.checkpoint_blocks")
+        check_count(
+            "Response.checkpoint_blocks", self.checkpoint_blocks, 1, n_steps // save_every, " (saved blocks)"
+        )
 
     def _start(self, params):
         system = self.build(params)
