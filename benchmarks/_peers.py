@@ -10,6 +10,7 @@ pgtjax's statistics to rounding: that is checked before anything is timed (:func
 
 from __future__ import annotations
 
+import concurrent.futures
 import contextlib
 from dataclasses import dataclass
 
@@ -118,12 +119,13 @@ if numba is not None:
 
     _DRAWS = {"np.random": _draw_np_random, "generator": _draw_generator, "given": _draw_given}
 
-    def _kernel(source: str):
+    def _kernel(source: str, nogil: bool = False):
         """A numba kernel: blocks of ``_LANES`` samples (``prange`` over blocks), each block stepped through
         time with its samples in the innermost loop, its statistics reduced per block and merged at the end.
         ``source`` says where the normals come from: ``"np.random"`` (numba's generator, one stream per
         thread), ``"generator"`` (a NumPy Generator passed in; one thread only) or ``"given"`` (an array
-        (n_steps, n_samples))."""
+        (n_steps, n_samples)). ``nogil``: a serial kernel that releases the GIL, for Python threads that
+        each run it on their own samples with their own Generator (:func:`numba_monte_carlo`)."""
         draw = _DRAWS[source]
 
         @numba.njit(inline="always")
@@ -174,7 +176,8 @@ if numba is not None:
                     mean[j, c] = mu
                     m2[j, c] = acc
 
-        @numba.njit(parallel=True)  # prange over blocks; with one thread the same code on one core
+        # prange over blocks; with one thread the same code on one core (a serial loop where ``nogil``)
+        @(numba.njit(nogil=True) if nogil else numba.njit(parallel=True))
         def run(src, n_samples, n_steps, save_every, x_u, x_v, load, noise, kinv_g, g, s, b, h, k):
             n_blocks = -(-n_samples // _LANES)
             n_saved = n_steps // save_every + 1
@@ -229,9 +232,14 @@ if numba is not None:
         parallel=False,
     ):
         """The numba kernel of ``source`` ("np.random", "generator" with ``rng``, or "given" with ``normals``);
-        ``parallel`` runs the blocks of samples on all of numba's threads, else on one. Returns (mean, m2)."""
+        ``parallel`` runs the blocks of samples on all of numba's threads, else on one. A NumPy Generator is
+        not thread-safe, so with ``parallel`` the "generator" kernel runs in as many Python threads, each on
+        a contiguous share of the samples with its own child of ``rng`` (``Generator.spawn``), and the shares'
+        statistics are merged as the kernel merges its blocks. Returns (mean, m2)."""
         if parallel and source == "generator":
-            raise ValueError("a NumPy Generator is not thread-safe: parallel kernels draw from np.random")
+            return numba_in_threads(
+                scheme, n_samples, n_steps, save_every, n_threads=numba.get_num_threads(), rng=rng
+            )
         if source not in _KERNELS:
             _KERNELS[source] = _kernel(source)
         if source == "np.random":
@@ -244,6 +252,49 @@ if numba is not None:
                 first, n_samples, n_steps, save_every, scheme.x_u, scheme.x_v, scheme.load,
                 scheme.noise, scheme.kinv_g, scheme.g, scheme.s, scheme.b, scheme.h, scheme.k,
             )  # fmt: skip
+
+    def _shares(n_samples, n_threads):
+        """Contiguous shares of the samples, one per thread (at most one thread per sample)."""
+        edges = np.linspace(0, n_samples, min(n_threads, n_samples) + 1).astype(int)
+        return list(zip(edges[:-1], edges[1:]))
+
+    def _in_threads(source, sources, shares, scheme, n_steps, save_every):
+        """The serial ``nogil`` kernel of ``source`` run on each share in a Python thread of its own, with that
+        share's source of normals, and the shares' statistics merged (Chan's parallel combination)."""
+        name = source + "-nogil"
+        if name not in _KERNELS:
+            _KERNELS[name] = _kernel(source, nogil=True)
+        kernel = _KERNELS[name]
+
+        def share(i):
+            lo, hi = shares[i]
+            return kernel(
+                sources[i], int(hi - lo), n_steps, save_every, scheme.x_u, scheme.x_v, scheme.load,
+                scheme.noise, scheme.kinv_g, scheme.g, scheme.s, scheme.b, scheme.h, scheme.k,
+            )  # fmt: skip
+
+        with concurrent.futures.ThreadPoolExecutor(len(shares)) as pool:
+            parts = list(pool.map(share, range(len(shares))))
+        counts = [hi - lo for lo, hi in shares]
+        (mean, m2), total = parts[0], counts[0]
+        mean, m2 = mean.copy(), m2.copy()
+        for (mean_i, m2_i), count in zip(parts[1:], counts[1:]):
+            new = total + count
+            d = mean_i - mean
+            mean += d * (count / new)
+            m2 += m2_i + d * d * (total * count / new)
+            total = new
+        return mean, m2
+
+    def numba_in_threads(scheme, n_samples, n_steps, save_every, *, n_threads, rng=None, normals=None):
+        """What a user with a NumPy ``Generator`` runs on every core: the "generator" kernel in ``n_threads``
+        Python threads, each with a child of ``rng`` (``Generator.spawn``); with ``normals`` (n_steps,
+        n_samples) instead, the "given" kernel on the same shares (a check of the shares and their merge)."""
+        shares = _shares(n_samples, n_threads)
+        if normals is not None:
+            sources = [np.ascontiguousarray(normals[:, lo:hi]) for lo, hi in shares]
+            return _in_threads("given", sources, shares, scheme, n_steps, save_every)
+        return _in_threads("generator", rng.spawn(len(shares)), shares, scheme, n_steps, save_every)
 
     @contextlib.contextmanager
     def _threads(n):
@@ -298,6 +349,9 @@ def check_against_pgtjax(system, h, *, n_samples=64, n_steps=400, save_every=100
         )
         runs["numba_parallel"] = numba_monte_carlo(
             scheme, n_samples, n_steps, save_every, source="given", normals=normals, parallel=True
+        )
+        runs["numba_threads"] = numba_in_threads(
+            scheme, n_samples, n_steps, save_every, n_threads=2, normals=normals
         )
     out = {}
     for name, (mean, m2) in runs.items():
@@ -362,6 +416,10 @@ def time_gear_pair(system, *, h, n_samples, n_steps, save_every, rounds, seed=0,
         runs[f"numba, np.random, prange over {numba.get_num_threads()} threads"] = lambda: numba_monte_carlo(
             scheme, n_samples, n_steps, save_every, source="np.random", seed=seed, parallel=True
         )
+        runs[f"numba, NumPy Generator, {numba.get_num_threads()} Python threads"] = lambda: numba_monte_carlo(
+            scheme, n_samples, n_steps, save_every, source="generator", rng=np.random.default_rng(seed),
+            parallel=True,
+        )  # fmt: skip
     samples = dict.fromkeys(runs, n_samples)
     for name, (solver, substeps) in (diffrax_steps or {}).items():
         label = f"diffrax {name}, {substeps} steps per Newmark step, 1 device"

@@ -75,7 +75,7 @@ class EigenPropagator(eqx.Module):
 
     def advance(self, z):
         """``z -> Lambda z`` for rows ``z`` (k, 2n), e.g. the contact directions' images: elementwise, the 2x2
-        blocks pairing Re and Im. (A batch's state is advanced part by part, :func:`eigen_sample_step`.)"""
+        blocks pairing Re and Im. (A batch's state is advanced part by part, :func:`eigen_advance`.)"""
         cut = 2 * self.n_pairs
         return jnp.concatenate([self.advance_pairs(z[:, :cut]), z[:, cut:] * self.scale[None, cut:]], axis=1)
 
@@ -241,38 +241,68 @@ def _parts_times(parts, rows):
     return total
 
 
-def eigen_sample_step(
-    system: System,
-    prop: EigenPropagator,
-    state: EigenSampleState,
-    s0: Snapshot,
-    s1: Snapshot,
-    draws,
-    integrator: AbstractIntegrator,
-):
-    """:func:`pgtjax._newmark.sample_step` in eigen-coordinates (module docstring); same arguments, with the
-    step ``prop.h``. Returns the new state and the per-sample contact-solve flag.
+class EigenStepInputs(NamedTuple):
+    """What a step from ``s0`` to ``s1`` needs besides the batch's state and draws (:func:`eigen_step_inputs`):
+    the same for every sample, so Monte Carlo forms it for a whole block of steps at once, outside the step
+    loop (a step's own small matrix products were about a dozen tiny kernels per step; docs/performance.md)."""
+
+    rows: jax.Array  # z-increment per unit of [1, draws, start-of-step forces], (1 + n_draws + nc, 2n)
+    to_contacts: jax.Array  # end-of-step contact deflections per eigen-coordinate, (2n, nc)
+    coupling: jax.Array  # G1^T A^-1 G1, (nc, nc)
+    contact_inputs: object  # the contact law's inputs at the step's end, every leaf (nc,)
+
+
+def eigen_step_inputs(
+    system: System, prop: EigenPropagator, s0: Snapshot, s1: Snapshot, integrator: AbstractIntegrator
+) -> EigenStepInputs:
+    """:class:`EigenStepInputs` of the step from ``s0`` to ``s1`` (step ``prop.h``): with
+    :func:`eigen_advance`, :func:`pgtjax._newmark.sample_step` in eigen-coordinates (module docstring).
 
     With ``z0 = y0 - f0 Q0^T`` the contact-free update ``Lambda z0 + inputs - f0 Q0^T`` is
     ``Lambda y0 + inputs - f0 (Lambda Q0 + Q0)^T``: loads, noise and the start-of-step forces enter through
-    one product with a (1 + n_draws + nc, 2n) matrix (:func:`_outer_products`, fused with ``Lambda y0``);
-    the end-of-step forces are left in ``y1``.
-    """
+    one product with the rows ``[load; noise; -(Lambda Q0 + Q0)]``."""
     h = prop.h
-    columns = [jnp.ones((state.real.shape[0], 1), state.real.dtype)]
     rows = [((s0.load + s1.load) @ prop.force_input.T)[None, :]]
-    if draws.shape[1]:
+    if integrator.noise_dimension(system):
         noise, v_noise = integrator.noise_matrices(system, s0, s1, h)
         z_noise = prop.force_input @ noise
         if integrator.has_velocity_noise:
             z_noise = z_noise + (0.5 * h) * (prop.basis_inverse[:, system.n_dof :] @ v_noise)
-        columns.append(draws)
         rows.append(z_noise.T)
-    ok = jnp.ones(columns[0].shape[0], dtype=bool)
     if system.n_contacts:
         q0 = _contact_input(prop, s0)
-        columns.append(state.force)
         rows.append(-(prop.advance(q0) + q0))
+    g1 = s1.direction
+    return EigenStepInputs(
+        jnp.concatenate(rows, axis=0),
+        prop.basis[: system.n_dof].T @ g1,
+        g1.T @ prop.a_inv @ g1,
+        s1.contact_inputs,
+    )
+
+
+def eigen_advance(
+    system: System, prop: EigenPropagator, state: EigenSampleState, inputs: EigenStepInputs, draws
+):
+    """One step of a batch with the step's :class:`EigenStepInputs` and its standard normals ``draws``
+    (batch, n_draws): the elementwise map ``Lambda y0`` plus the rows' outer products (:func:`_outer_products`,
+    fused into one pass over the batch), then the contact solve; the end-of-step forces are left in ``y1``.
+    Returns the new state and the per-sample contact-solve flag."""
+    nd = draws.shape[1]
+    if inputs.rows.shape[-2] != 1 + nd + state.force.shape[1]:  # static: the rows of another noise dimension
+        raise ValueError(
+            f"eigen_advance: {inputs.rows.shape[-2]} input rows for 1 + {nd} draws + {state.force.shape[1]} "
+            "contact forces"
+        )
+    columns = [jnp.ones((state.real.shape[0], 1), state.real.dtype)]
+    rows = [inputs.rows[:1]]
+    if nd:
+        columns.append(draws)
+        rows.append(inputs.rows[1 : 1 + nd])
+    ok = jnp.ones(columns[0].shape[0], dtype=bool)
+    if system.n_contacts:
+        columns.append(state.force)
+        rows.append(inputs.rows[1 + nd :])
     m = prop.n_pairs
     a, b = prop.scale[None, :m], prop.cross[None, :]
     re = a * state.re + b * state.im + _outer_products(columns, [r[:, :m] for r in rows])
@@ -280,8 +310,7 @@ def eigen_sample_step(
     real = state.real * prop.scale[None, 2 * m :] + _outer_products(columns, [r[:, 2 * m :] for r in rows])
     if not system.n_contacts:
         return EigenSampleState(re, im, real, state.force), ok
-    g1 = s1.direction
-    to_contacts = prop.basis[: system.n_dof].T @ g1  # (2n, nc): contact deflections per eigen-coordinate
+    to_contacts = inputs.to_contacts
     delta_lin = _parts_times((re, im, real), (to_contacts[:m], to_contacts[m : 2 * m], to_contacts[2 * m :]))
-    force, ok = solve_contact_forces(system, delta_lin, g1.T @ prop.a_inv @ g1, s1.contact_inputs)
+    force, ok = solve_contact_forces(system, delta_lin, inputs.coupling, inputs.contact_inputs)
     return EigenSampleState(re, im, real, force), ok

@@ -24,6 +24,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.flatten_util import ravel_pytree
 
 from ._checkpoint import (
     check_checkpoint,
@@ -32,7 +33,13 @@ from ._checkpoint import (
     save_checkpoint,
     tree_digest,
 )
-from ._eigenbasis import eigen_initial_state, eigen_propagator, eigen_recorded, eigen_sample_step
+from ._eigenbasis import (
+    eigen_advance,
+    eigen_initial_state,
+    eigen_propagator,
+    eigen_recorded,
+    eigen_step_inputs,
+)
 from ._failure import SolverError, raise_if_nonfinite
 from ._loop import saved_scan
 from ._newmark import (
@@ -44,13 +51,16 @@ from ._newmark import (
     sample_step,
     snapshot,
 )
+from ._numerics import materialized
 from ._parallel import (
+    WIDE_VECTORS,
     default_chunk_size,
     device_mesh,
     fail_together,
     gather_processes,
     local_devices,
     refuse_together,
+    wide_vectors,
 )
 from ._random import block_normals
 from ._random import normal as standard_normal
@@ -199,9 +209,6 @@ def _sample_statistics(
     else:  # eigen-coordinates of the contact-free map (pgtjax._eigenbasis)
         state = eigen_initial_state(eigen, state.u, state.v, state.force, s0)
 
-        def step(state, snap0, snap1, draws):
-            return eigen_sample_step(system, eigen, state, snap0, snap1, draws, integrator)
-
         def recorded(state, snap, t):  # straight from the eigen-coordinates: (u, v) are never formed
             c = jnp.zeros((n, 0), state.real.dtype) if observables is None else observables(t).T
             q = eigen_recorded(eigen, state, snap, c)
@@ -241,15 +248,45 @@ def _sample_statistics(
         keys = jax.vmap(lambda k: jax.random.fold_in(k, block_index))(sample_keys)
         return block_normals(keys, save_every, nd)  # (save_every, batch, nd)
 
-    def advance(c, step_number, step_draws):
-        state, snap0, bad = c
-        snap1 = snapshot(system, t0 + dt * step_number)
-        state, ok = step(state, snap0, snap1, step_draws)
-        return (state, snap1, bad + jnp.sum(weights * (~ok))), None
+    if eigen is None:
+
+        def advance(c, step_number, step_draws):
+            state, snap0, bad = c
+            snap1 = snapshot(system, t0 + dt * step_number)
+            state, ok = step(state, snap0, snap1, step_draws)
+            return (state, snap1, bad + jnp.sum(weights * (~ok))), None
+
+        block_inputs = block_draws
+    else:  # what a step needs besides the state, formed for the block's steps at once, outside the step loop
+
+        def flat_inputs(s0, s1):
+            return ravel_pytree(eigen_step_inputs(system, eigen, s0, s1, integrator))[0]
+
+        _, unflatten = ravel_pytree(eigen_step_inputs(system, eigen, s0, s0, integrator))
+
+        def block_inputs(block_index):
+            steps = block_index * save_every + jnp.arange(save_every + 1)
+            snaps = jax.vmap(lambda k: snapshot(system, t0 + dt * k))(steps)
+            inputs = jax.vmap(flat_inputs)(
+                jax.tree.map(lambda a: a[:-1], snaps), jax.tree.map(lambda a: a[1:], snaps)
+            )
+            return block_draws(block_index), inputs  # (save_every, batch, nd), (save_every, n_inputs)
+
+        def advance(c, step_number, x):
+            state, snap, bad = c  # snap: the start's, unused here (the record forms its own)
+            step_draws, inputs = x
+            # the step's inputs in one small array of their own: read through the scan's slice inside the
+            # batch's loops, they made those loops 2.6 times slower (docs/performance.md)
+            inputs = unflatten(materialized(inputs))
+            state, ok = eigen_advance(system, eigen, state, inputs, step_draws)
+            return (state, snap, bad + jnp.sum(weights * (~ok))), None
 
     def record(c, _, block_index):
         state, snap, _ = c
-        return statistics(state, snap, t0 + dt * (block_index + 1) * save_every)
+        t = t0 + dt * (block_index + 1) * save_every
+        if eigen is not None:  # not carried through the steps
+            snap = snapshot(system, t0 + dt * ((block_index + 1) * save_every))
+        return statistics(state, snap, t)
 
     first = statistics(state, s0, t0)
     carry = (state, s0, jnp.array(0.0))
@@ -260,7 +297,7 @@ def _sample_statistics(
         first,
         n_blocks=n_steps // save_every,
         save_every=save_every,
-        block_inputs=block_draws,
+        block_inputs=block_inputs,
     )
     return saved, carry[2]
 
@@ -269,7 +306,6 @@ _SAMPLE_AXIS = "samples"
 MAX_SAMPLES = 2**32  # sample ids are folded into the key as 32-bit integers
 
 
-@eqx.filter_jit
 def _chunk(system, key, sample_ids, weights, *args, mesh, **static):
     """:func:`_sample_statistics` of the samples ``sample_ids`` (n_devices, per_device), one row per device
     of ``mesh``: every device computes the statistics of its own row, with no communication; the results
@@ -286,6 +322,11 @@ def _chunk(system, key, sample_ids, weights, *args, mesh, **static):
         local, mesh=mesh, in_specs=(jax.sharding.PartitionSpec(), spec, spec), out_specs=spec, check_vma=False
     )
     return sharded(arrays, sample_ids, weights)
+
+
+_compiled_chunk = eqx.filter_jit(_chunk)
+# the same program with XLA's 512-bit vectors, for CPUs with AVX-512 (pgtjax._parallel.wide_vectors)
+_compiled_chunk_wide_vectors = eqx.filter_jit(_chunk, compiler_options=WIDE_VECTORS)
 
 
 class _Moments(NamedTuple):
@@ -572,6 +613,7 @@ def monte_carlo(
         devices = local_devices(devices)
         n_dev = len(devices)
         mesh = device_mesh(devices, _SAMPLE_AXIS)
+        chunk = _compiled_chunk_wide_vectors if wide_vectors(devices) else _compiled_chunk
         # round r: n_proc x n_dev rows of per_device consecutive sample ids, row (p, d) on device d of process p
         per_device = _samples_per_device(n_samples, chunk_size, devices, n_proc)
         round_size = n_proc * n_dev * per_device
@@ -600,6 +642,9 @@ def monte_carlo(
             processes=n_proc,
             process=proc,
         )
+        if eigen is not None:  # the steps' inputs formed per saved block since 2026-11-28 (rounding differs):
+            # a checkpoint of an eigen run from before is refused rather than resumed to last-bit differences
+            description["step_inputs"] = "per block"
         if resume:
             saved = load_checkpoint(checkpoint, description, what="monte_carlo")
             first_round = int(saved.pop("next_round"))
@@ -619,7 +664,7 @@ def monte_carlo(
             weights = (ids < n_samples).astype(np.float64)
             # padding rows (weight 0) repeat the last sample: a sample of their own could be NaN where every real
             # one is finite, and 0 x NaN would spoil the sums
-            parts, bad = _chunk(
+            parts, bad = chunk(
                 system,
                 key,
                 jnp.asarray(np.minimum(ids, n_samples - 1)),

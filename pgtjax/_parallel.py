@@ -4,6 +4,7 @@ and design batches alike."""
 from __future__ import annotations
 
 import contextlib
+import functools
 import importlib.metadata
 import os
 import re
@@ -25,6 +26,34 @@ def default_chunk_size(devices, cpu: int = CPU_CHUNK_SIZE) -> int:
     at 100,000; ``benchmarks/results/gpu_chunks.json``); on CPU devices the default stays what it always
     was, and memory stays small."""
     return cpu if all(d.platform == "cpu" for d in devices) else ACCELERATOR_CHUNK_SIZE
+
+
+#: XLA options that make its CPU loops use 512-bit vectors (XLA's default is 256 bits whatever the CPU)
+WIDE_VECTORS = {"xla_cpu_prefer_vector_width": 512}
+
+
+@functools.cache
+def cpu_has_avx512() -> bool:
+    """Whether this machine's CPU has AVX-512 (``avx512f`` among the flags of ``/proc/cpuinfo``; False where
+    that file does not exist)."""
+    try:
+        with open("/proc/cpuinfo") as f:
+            return any(line.startswith("flags") and " avx512f" in line for line in f)
+    except OSError:  # pragma: no cover - not Linux
+        return False
+
+
+def wide_vectors(devices) -> bool:
+    """Whether Monte Carlo's program for ``devices`` is compiled with :data:`WIDE_VECTORS`: every device is a
+    CPU, the CPU has AVX-512, and ``XLA_FLAGS`` does not choose a vector width itself
+    (``--xla_cpu_prefer_vector_width=256`` turns this off). The statistics agree to rounding (the gear pair's
+    were the same doubles); on two devices of an AMD EPYC the gear pair's Monte Carlo ran in about 0.7x the
+    time (measured there only; docs/performance.md)."""
+    return (
+        all(d.platform == "cpu" for d in devices)
+        and cpu_has_avx512()
+        and "xla_cpu_prefer_vector_width" not in os.environ.get("XLA_FLAGS", "")
+    )
 
 
 def local_devices(devices=None) -> list:

@@ -10,8 +10,9 @@ thesis ch. 6); over a step the mean of its end values is used.
 Time dependence: ``C``, ``K``, ``F``, the contact directions and stiffnesses are each either an array or a
 callable ``t -> array``. Use an ``equinox.Module`` with a ``__call__`` (e.g. :class:`FourierSeries`) for a
 time function whose parameters you want to differentiate or ``vmap``; a plain Python function works too but its
-closed-over arrays are constants for JAX. ``M`` is constant: every model of the documents has constant mass,
-and a time-varying mass would need the momentum form of the integrator.
+closed-over arrays are constants for JAX. Write time functions with ``jax.numpy``: the solvers trace them, and
+Monte Carlo evaluates them for a block of times at once (``jax.vmap``). ``M`` is constant: every model of the
+documents has constant mass, and a time-varying mass would need the momentum form of the integrator.
 
 Units are SI (m, kg, N, s) unless a model says otherwise; a DOF may be an angle times a radius (m).
 """

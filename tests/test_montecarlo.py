@@ -423,6 +423,19 @@ def test_constant_stiffness_mc_equals_time_function_mc():
         np.testing.assert_allclose(x, y, rtol=0, atol=1e-9 * float(jnp.max(jnp.abs(y))))
 
 
+_EVERY_STATISTIC = (
+    "mean_u",
+    "std_u",
+    "mean_v",
+    "std_v",
+    "mean_delta",
+    "std_delta",
+    "force_mean",
+    "force_std",
+    "contact_loss_probability",
+)
+
+
 def _chain_with_contacts(n=14, seed=5, damping_scale=1.0):
     """Lightly damped grounded chain with one heavy dashpot (complex eigenvalue pairs and real eigenvalues);
     two backlash contacts that open and close, one of them moving (its direction turns with time, as the
@@ -501,19 +514,7 @@ def test_eigen_coordinates_reproduce_the_physical_coordinate_scheme(scheme, damp
     phys = pg.monte_carlo(system, propagation="physical", **kw)
     assert (eig.propagation, phys.propagation) == ("eigen", "physical")
     assert 0.05 < float(jnp.mean(phys.contact_loss_probability[1:])) < 0.95  # the contacts open and close
-    for name in (
-        "mean_u",
-        "std_u",
-        "mean_v",
-        "std_v",
-        "mean_delta",
-        "std_delta",
-        "force_mean",
-        "force_std",
-        "mean_obs",
-        "std_obs",
-        "contact_loss_probability",
-    ):
+    for name in _EVERY_STATISTIC + ("mean_obs", "std_obs"):
         a, b = np.asarray(getattr(eig, name)), np.asarray(getattr(phys, name))
         assert a.dtype == np.float64
         np.testing.assert_allclose(a, b, rtol=0, atol=1e-9 * np.max(np.abs(b)), err_msg=name)
@@ -737,4 +738,73 @@ def test_designs_differing_only_in_values_share_one_compiled_sampler(caplog):
                 system(s), n_samples=64, key=KEY, dt=0.01, n_steps=20, save_every=5, progress=False
             )
     compiled = [r for r in caplog.records if "compilation of jit(_chunk)" in r.getMessage()]
-    assert len(compiled) <= 1, f"{len(compiled)} compilations for two designs of equal shape"
+    assert len(compiled) == 1, f"{len(compiled)} compilations for two designs of equal shape"
+
+
+@pytest.mark.parametrize("model", ["gear_pair", "chain"])
+def test_wide_vectors_change_no_statistic(monkeypatch, model):
+    """Monte Carlo compiled for 512-bit vectors (``pgtjax._parallel.wide_vectors``: CPUs with AVX-512) gives
+    the default program's statistics: double for double on the gear pair, whose loops are elementwise; to
+    rounding on a chain with moving contacts, wide parts of the state (matrix products), observables,
+    histograms and covariances, some of whose reductions XLA vectorizes differently (1.6e-15 of an array's
+    largest value measured on an AMD EPYC). On a CPU without AVX-512 both programs use the same vectors."""
+    from pgtjax import _montecarlo
+    from pgtjax.models import gear_pair as gp
+
+    if model == "gear_pair":
+        system = gp.build()
+        kw = dict(dt=1e-5, n_steps=200, save_every=50)
+        names = _EVERY_STATISTIC
+    else:
+        system, obs = _chain_with_contacts()
+        kw = dict(
+            dt=0.01,
+            n_steps=64,
+            save_every=8,
+            observables=obs,
+            histograms={"force:a": np.linspace(-3.0, 3.0, 13)},
+            histogram_times=[0.4],
+            covariance_dofs="all",
+        )
+        names = _EVERY_STATISTIC + ("mean_obs", "std_obs")
+    runs = {}
+    for wide in (False, True):
+        monkeypatch.setattr(_montecarlo, "wide_vectors", lambda devices, wide=wide: wide)
+        runs[wide] = pg.monte_carlo(system, n_samples=300, key=jax.random.key(5), progress=False, **kw)
+    assert float(np.max(runs[False].std_u)) > 0.0
+
+    def assert_same(a, b, name):
+        assert a.dtype == np.float64
+        if model == "gear_pair":
+            np.testing.assert_array_equal(a, b, err_msg=name)
+        else:
+            np.testing.assert_allclose(a, b, rtol=0, atol=1e-13 * np.max(np.abs(a)), err_msg=name)
+
+    for name in names:
+        assert_same(np.asarray(getattr(runs[False], name)), np.asarray(getattr(runs[True], name)), name)
+    if model == "chain":
+        assert float(np.sum(runs[False].histograms["force:a"])) > 0.0
+        # a sample may cross a bin edge by rounding: at most one count per bin
+        diff = np.asarray(runs[False].histograms["force:a"] - runs[True].histograms["force:a"])
+        assert np.max(np.abs(diff)) <= 1.0
+        cov = [np.asarray(r.covariance) for r in (runs[False], runs[True])]
+        assert cov[0].shape[-1] == 2 * system.n_dof
+        assert_same(cov[0], cov[1], "covariance")
+
+
+def test_wide_vectors_only_on_cpus_with_avx512_unless_xla_flags_choose_a_width(monkeypatch):
+    from pgtjax import _parallel
+
+    class Accelerator:
+        platform = "gpu"
+
+    cpu = jax.devices("cpu")
+    monkeypatch.delenv("XLA_FLAGS", raising=False)
+    monkeypatch.setattr(_parallel, "cpu_has_avx512", lambda: True)
+    assert _parallel.wide_vectors(cpu)
+    assert not _parallel.wide_vectors([Accelerator()])
+    monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_prefer_vector_width=256")
+    assert not _parallel.wide_vectors(cpu)
+    monkeypatch.delenv("XLA_FLAGS")
+    monkeypatch.setattr(_parallel, "cpu_has_avx512", lambda: False)
+    assert not _parallel.wide_vectors(cpu)

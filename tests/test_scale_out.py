@@ -318,6 +318,16 @@ def test_resume_refuses_another_run_and_bad_paths(tmp_path):
         match="another version of pgtjax .it records nothing that this version does not, and lacks normals",
     ):
         run(chunk_size=100, checkpoint=tmp_path / "before_normals.npz", resume=True, key=jax.random.key(17))
+    # one of an eigen-coordinate run written before the steps' inputs were formed per saved block
+    with np.load(checkpoint) as data:
+        meta = json.loads(str(data["__checkpoint__"]))
+    assert meta["propagation"] == "eigen" and meta["step_inputs"] == "per block"
+    del meta["step_inputs"], meta["format"], meta["run"]
+    save_checkpoint(tmp_path / "before_block_inputs.npz", arrays, meta, what="monte_carlo")
+    with pytest.raises(
+        ValueError, match="it records nothing that this version does not, and lacks step_inputs"
+    ):
+        run(chunk_size=100, checkpoint=tmp_path / "before_block_inputs.npz", resume=True)
     np.savez(tmp_path / "other.npz", x=np.zeros(3))
     with pytest.raises(ValueError, match="not a pgtjax checkpoint"):
         run(checkpoint=tmp_path / "other.npz", resume=True)
