@@ -11,6 +11,7 @@ implementation and may change without notice.
 """
 
 from . import _config  # noqa: F401  (enables float64 before anything else)
+from ._config import use_compilation_cache as use_compilation_cache
 from ._contact import AbstractCriterion as AbstractCriterion
 from ._contact import Backlash as Backlash
 from ._contact import ContactLaw as ContactLaw

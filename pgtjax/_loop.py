@@ -17,15 +17,18 @@ def saved_scan(
     *,
     n_blocks: int,
     save_every: int,
-    block_inputs: Callable[[jax.Array], Any] | None = None,
+    block_inputs: Callable[[jax.Array, jax.Array, int], Any] | None = None,
+    rows_per_input: int | None = None,
     remat_policy=None,
     blocks_per_checkpoint: int = 1,
 ):
     """Advance ``carry`` by ``n_blocks * save_every`` steps, recording after every block.
 
     ``step(carry, step_number, x) -> (carry, info)`` takes the step that ends at ``t0 + step_number * dt``
-    (``step_number`` = 1, 2, ...); ``x`` is the step's slice of ``block_inputs(block_index)`` (leading axis
-    ``save_every``; e.g. the block's random draws) or None. ``record(carry, infos, block_index)`` is what is
+    (``step_number`` = 1, 2, ...); ``x`` is the step's slice of ``block_inputs(block_index, first_row, rows)``
+    (the inputs of the block's steps ``first_row`` to ``first_row + rows - 1``, leading axis ``rows``; e.g. their
+    random draws) or None. They are formed ``rows_per_input`` steps at a time (default ``save_every``: the whole
+    block), the rest of the block last. ``record(carry, infos, block_index)`` is what is
     saved at the block's end, with ``infos`` the block's step infos stacked. ``first`` (the record at ``t0``)
     is prepended, so every saved leaf has a leading axis of ``n_blocks + 1``. With ``remat_policy`` each block
     is rematerialized in reverse mode under that ``jax.checkpoint`` policy; with ``blocks_per_checkpoint`` k > 1
@@ -33,14 +36,31 @@ def saved_scan(
     the group it transposes) rather than once per block. Returns ``(carry, saved)``.
     """
 
+    rows = save_every if rows_per_input is None else rows_per_input
+    if not 1 <= rows <= save_every:
+        raise ValueError(
+            f"saved_scan: `rows_per_input` must be in [1, save_every = {save_every}], got {rows}"
+        )
+    n_parts, rest_rows = divmod(save_every, rows)
+
     def block(carry, block_index):
-        inputs = None if block_inputs is None else block_inputs(block_index)
+        def steps(carry, first_row, n_rows: int):
+            inputs = None if block_inputs is None else block_inputs(block_index, first_row, n_rows)
 
-        def inner(c, xs):
-            j, x = xs
-            return step(c, block_index * save_every + j + 1, x)
+            def inner(c, xs):
+                j, x = xs
+                return step(c, block_index * save_every + first_row + j + 1, x)
 
-        carry, infos = jax.lax.scan(inner, carry, (jnp.arange(save_every), inputs))
+            return jax.lax.scan(inner, carry, (jnp.arange(n_rows), inputs))
+
+        if n_parts == 1 and not rest_rows:
+            carry, infos = steps(carry, 0, save_every)
+        else:  # the block's inputs formed a part at a time
+            carry, infos = jax.lax.scan(lambda c, p: steps(c, p * rows, rows), carry, jnp.arange(n_parts))
+            infos = jax.tree.map(lambda a: a.reshape((n_parts * rows,) + a.shape[2:]), infos)
+            if rest_rows:
+                carry, rest = steps(carry, n_parts * rows, rest_rows)
+                infos = jax.tree.map(lambda a, b: jnp.concatenate([a, b], axis=0), infos, rest)
         return carry, record(carry, infos, block_index)
 
     if blocks_per_checkpoint > 1 and remat_policy is None:

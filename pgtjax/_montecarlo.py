@@ -16,6 +16,7 @@ statistics can be checkpointed and a run resumed to exactly the uninterrupted re
 
 from __future__ import annotations
 
+import math
 import zipfile
 from collections.abc import Mapping, Sequence
 from typing import NamedTuple
@@ -56,13 +57,14 @@ from ._parallel import (
     WIDE_VECTORS,
     default_chunk_size,
     device_mesh,
+    draw_budget,
     fail_together,
     gather_processes,
     local_devices,
     refuse_together,
     wide_vectors,
 )
-from ._random import block_normals
+from ._random import block_normals, is_threefry
 from ._random import normal as standard_normal
 from ._random import stream as normals_stream
 from ._results import MonteCarloResult
@@ -178,6 +180,7 @@ def _sample_statistics(
     integrator,
     hist_columns,
     cov_columns=(),
+    rows_per_input=None,
 ):
     n_batch = sample_ids.shape[0]
     nd = integrator.noise_dimension(system)
@@ -240,13 +243,14 @@ def _sample_statistics(
             comoment = jnp.zeros((0, 0))
         return mean, m2, loss, counts, comoment
 
-    def block_draws(block_index):
-        # One RNG call per sample and saved block (not per step): the draws of sample s in block j are
-        # normal(fold_in(fold_in(key, s), j), (save_every, nd)), independent of how samples are chunked.
+    def block_draws(block_index, first_row, rows):
+        # One RNG key per sample and saved block (not per step): the draws of sample s in block j are
+        # normal(fold_in(fold_in(key, s), j), (save_every, nd)), independent of how samples are chunked and of
+        # how many of the block's rows are drawn at once.
         if not nd:
-            return jnp.zeros((save_every, n_batch, 0))
+            return jnp.zeros((rows, n_batch, 0))
         keys = jax.vmap(lambda k: jax.random.fold_in(k, block_index))(sample_keys)
-        return block_normals(keys, save_every, nd)  # (save_every, batch, nd)
+        return block_normals(keys, rows, nd, first_row, save_every)  # (rows, batch, nd)
 
     if eigen is None:
 
@@ -264,13 +268,13 @@ def _sample_statistics(
 
         _, unflatten = ravel_pytree(eigen_step_inputs(system, eigen, s0, s0, integrator))
 
-        def block_inputs(block_index):
-            steps = block_index * save_every + jnp.arange(save_every + 1)
+        def block_inputs(block_index, first_row, rows):
+            steps = block_index * save_every + first_row + jnp.arange(rows + 1)
             snaps = jax.vmap(lambda k: snapshot(system, t0 + dt * k))(steps)
             inputs = jax.vmap(flat_inputs)(
                 jax.tree.map(lambda a: a[:-1], snaps), jax.tree.map(lambda a: a[1:], snaps)
             )
-            return block_draws(block_index), inputs  # (save_every, batch, nd), (save_every, n_inputs)
+            return block_draws(block_index, first_row, rows), inputs  # (rows, batch, nd), (rows, n_inputs)
 
         def advance(c, step_number, x):
             state, snap, bad = c  # snap: the start's, unused here (the record forms its own)
@@ -298,8 +302,42 @@ def _sample_statistics(
         n_blocks=n_steps // save_every,
         save_every=save_every,
         block_inputs=block_inputs,
+        rows_per_input=rows_per_input,
     )
     return saved, carry[2]
+
+
+def _rows_per_input(save_every: int, bytes_per_row: int, budget: int, partial_draws: bool) -> int:
+    """Steps of a saved block whose random draws and step inputs (``bytes_per_row`` per step) are formed at
+    once: as many as ``budget`` bytes hold (at least 1), preferring a divisor of ``save_every`` not under half
+    of that, so that the block's rest does not compile the step a second time; the whole block where it fits,
+    or where its draws cannot be drawn in parts (``partial_draws`` False: keys other than threefry's)."""
+    if not partial_draws or save_every * bytes_per_row <= budget:
+        return save_every
+    rows = max(1, budget // bytes_per_row)
+    small = [d for d in range(1, math.isqrt(save_every) + 1) if save_every % d == 0]
+    divisor = max(d for d in small + [save_every // d for d in small] if d <= rows)
+    return divisor if 2 * divisor >= rows else rows
+
+
+def _block_rows(system, eigen, integrator, key, t0, save_every: int, per_device: int, devices) -> int:
+    """:func:`_rows_per_input` for a device's batch of ``per_device`` samples, within
+    :func:`pgtjax._parallel.draw_budget`: per step, the batch's uniforms and normals (and their transpose for
+    several noise inputs, pgtjax._random.block_normals) and the flat step inputs of eigen-coordinates."""
+    nd = integrator.noise_dimension(system)
+    n_inputs = 0
+    if eigen is not None:  # the flat step inputs of pgtjax._eigenbasis, formed for every step of a part
+        s0 = snapshot(system, t0)
+        n_inputs = jax.eval_shape(
+            lambda: ravel_pytree(eigen_step_inputs(system, eigen, s0, s0, integrator))[0]
+        ).size
+    copies = 2 if nd == 1 else 3
+    return _rows_per_input(
+        save_every,
+        8 * (copies * per_device * nd + n_inputs),
+        draw_budget(devices),
+        not nd or is_threefry(key),
+    )
 
 
 _SAMPLE_AXIS = "samples"
@@ -514,7 +552,10 @@ def monte_carlo(
         key: a ``jax.random`` key (e.g. ``jax.random.key(0)``).
         chunk_size: samples per compiled batch and device (bounds memory: about ``chunk_size * 4 n`` floats);
             default 5,000 on CPU devices and 100,000 on a GPU, where small batches leave it idle between
-            kernel launches. The statistics do not depend on it (to rounding).
+            kernel launches. The statistics do not depend on it (to rounding). A long saved block's random
+            draws and step inputs are formed a part at a time, about 8 MiB per CPU device and at most 256 MiB
+            per GPU (threefry keys, JAX's default; another generator's draws are formed for the whole block),
+            so that a long ``save_every`` costs neither memory nor time.
         histograms: ``{quantity: bin_edges}`` with quantity names from :func:`quantity_names`
             (e.g. ``"delta:mesh"``); all edge arrays must have the same length.
         histogram_times: times (s) at which the histograms are reported (nearest saved time).
@@ -642,9 +683,14 @@ def monte_carlo(
             processes=n_proc,
             process=proc,
         )
-        if eigen is not None:  # the steps' inputs formed per saved block since 2026-11-28 (rounding differs):
-            # a checkpoint of an eigen run from before is refused rather than resumed to last-bit differences
-            description["step_inputs"] = "per block"
+        rows_per_input = _block_rows(system, eigen, integrator, key, t0, save_every, per_device, devices)
+        if eigen is not None:  # the steps' inputs formed per saved block, or per part of a long one, since
+            # 2026-11-28 (rounding differs): a checkpoint of an eigen run from before, or with parts of another
+            # length (they follow from the devices' draw budget, pgtjax._parallel.draw_budget), is refused rather
+            # than resumed to last-bit differences
+            description["step_inputs"] = (
+                "per block" if rows_per_input == save_every else f"per {rows_per_input} steps"
+            )
         if resume:
             saved = load_checkpoint(checkpoint, description, what="monte_carlo")
             first_round = int(saved.pop("next_round"))
@@ -683,6 +729,7 @@ def monte_carlo(
                 integrator=integrator,
                 hist_columns=tuple(hist_columns),
                 cov_columns=cov_columns,
+                rows_per_input=rows_per_input,
             )
             parts, bad = [np.asarray(a) for a in parts], np.asarray(bad)
             for d in range(n_dev):

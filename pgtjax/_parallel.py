@@ -17,6 +17,12 @@ from ._failure import ProcessFailedError
 
 CPU_CHUNK_SIZE = 5000
 ACCELERATOR_CHUNK_SIZE = 100_000
+#: bytes of a saved block's random draws (uniforms and normals) and step inputs that Monte Carlo forms at once,
+#: per device: a longer block is formed a part at a time. On a CPU the part stays in cache until its steps read
+#: it (gear pair, 2,000 steps saved once: 11.5 ns per sample-step formed whole, 5.2 in parts of 100 steps,
+#: benchmarks/results/save_interval.json); on an accelerator the bound only keeps memory small
+CPU_DRAW_BYTES = 8 * 2**20
+ACCELERATOR_DRAW_BYTES = 256 * 2**20
 
 
 def default_chunk_size(devices, cpu: int = CPU_CHUNK_SIZE) -> int:
@@ -26,6 +32,11 @@ def default_chunk_size(devices, cpu: int = CPU_CHUNK_SIZE) -> int:
     at 100,000; ``benchmarks/results/gpu_chunks.json``); on CPU devices the default stays what it always
     was, and memory stays small."""
     return cpu if all(d.platform == "cpu" for d in devices) else ACCELERATOR_CHUNK_SIZE
+
+
+def draw_budget(devices) -> int:
+    """:data:`CPU_DRAW_BYTES` where every device is a CPU, else :data:`ACCELERATOR_DRAW_BYTES`."""
+    return CPU_DRAW_BYTES if all(d.platform == "cpu" for d in devices) else ACCELERATOR_DRAW_BYTES
 
 
 #: XLA options that make its CPU loops use 512-bit vectors (XLA's default is 256 bits whatever the CPU)

@@ -172,19 +172,26 @@ def normal(key, shape: tuple[int, ...]) -> jax.Array:
     return np.sqrt(2.0) * erfinv(_uniform(words[0], words[1], counter))
 
 
-def block_normals(keys, rows: int, width: int) -> jax.Array:
-    """``normal(key, (rows, width))`` for each of a batch of ``keys``, laid out (rows, batch, width) for a
-    scan over the rows. They are drawn as (rows, width, batch), the samples innermost, and transposed: drawn
-    per key, or with the counters flattened over (sample, column), XLA:CPU did not vectorize the loop for some
-    widths and a normal cost 2-3 times as much (docs/performance.md)."""
+def block_normals(keys, rows: int, width: int, first_row=0, block_rows: int | None = None) -> jax.Array:
+    """Rows ``first_row`` to ``first_row + rows - 1`` of ``normal(key, (block_rows, width))`` (``block_rows``:
+    default ``rows``) for each of a batch of ``keys``, laid out (rows, batch, width) for a scan over the rows.
+    ``first_row`` (an integer, or an integer scalar array) must be 0 for keys this module does not draw
+    (:func:`is_threefry`). They are drawn as (rows, width, batch), the samples innermost, and transposed:
+    drawn per key, or with the counters flattened over (sample, column), XLA:CPU did not vectorize the loop
+    for some widths and a normal cost 2-3 times as much (docs/performance.md)."""
+    block_rows = rows if block_rows is None else block_rows
+    if isinstance(first_row, int) and not 0 <= first_row <= block_rows - rows:
+        raise ValueError(
+            f"block_normals: rows {first_row} to {first_row + rows - 1} are not in a block of {block_rows}"
+        )
     if not is_threefry(keys):
+        if rows != block_rows:
+            raise ValueError("block_normals: only threefry keys draw part of a block")
         return jnp.swapaxes(jax.vmap(lambda k: normal(k, (rows, width)))(keys), 0, 1)
-    _check_count(rows * width, f"a block of {rows} x {width}")
+    _check_count(block_rows * width, f"a block of {block_rows} x {width}")
     words = jax.random.key_data(keys)  # (batch, 2)
-    counter = (
-        lax.iota(jnp.uint32, rows)[:, None, None] * np.uint32(width)
-        + lax.iota(jnp.uint32, width)[None, :, None]
-    )
+    row = jnp.asarray(first_row).astype(jnp.uint32) + lax.iota(jnp.uint32, rows)
+    counter = row[:, None, None] * np.uint32(width) + lax.iota(jnp.uint32, width)[None, :, None]
     counter = jnp.broadcast_to(counter, (rows, width, keys.shape[0]))
     uniforms = _uniform(words[None, None, :, 0], words[None, None, :, 1], counter)
     # the uniforms stored by their own loop: fused with the erfinv, threefry ran twice and the loop at about

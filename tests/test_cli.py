@@ -77,3 +77,51 @@ def test_parameters_toml_reproduces_the_run_and_set_overrides_name_their_key(tmp
     capsys.readouterr()
     assert main(["planetary-modal", "--set", "ring.rim_thicknes=0.1"]) == 2
     assert "did you mean `ring.rim_thickness`" in capsys.readouterr().err
+
+
+_CACHED_PROGRAM = """
+import sys
+import jax, jax.numpy as jnp
+import pgtjax as pg
+hits = []
+jax.monitoring.register_event_listener(lambda name, **kw: hits.append(name.endswith("/cache_hits")))
+assert pg.use_compilation_cache(sys.argv[1]).is_dir()
+y = jax.jit(lambda x: jnp.sin(x) @ x)(jnp.linspace(0.0, 1.0, 400).reshape(20, 20))
+assert y.dtype == jnp.float64
+print(repr(float(jnp.sum(y))), sum(hits))
+"""
+
+
+def test_compilation_cache_gives_the_next_process_the_compiled_programs(tmp_path):
+    """``pg.use_compilation_cache``: a program compiled in well under JAX's default threshold of a second is
+    kept (the folder gains its entry), and a second process loads it (JAX's cache-hit event) and computes the
+    same doubles."""
+    import subprocess
+    import sys
+
+    cache = tmp_path / "cache"
+
+    def run():
+        out = subprocess.run(
+            [sys.executable, "-c", _CACHED_PROGRAM, str(cache)], capture_output=True, text=True, timeout=300
+        )
+        assert out.returncode == 0, out.stderr
+        value, hits = out.stdout.split()
+        return value, int(hits), out.stderr
+
+    first, hits, _ = run()
+    assert hits == 0
+    assert any(p.name.startswith("jit__lambda") for p in cache.iterdir())
+    second, hits, err = run()
+    assert second == first
+    if "doesn't match the machine type" in err:  # pragma: no cover - some Intel CPUs with AVX-512
+        pytest.skip("JAX rejects its own cached CPU programs on this CPU (jax-ml/jax issue 38445)")
+    assert hits >= 1
+
+
+def test_compilation_cache_folder_that_cannot_be_made_is_refused_with_the_option_named(tmp_path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    assert main(["--compilation-cache", str(blocker / "cache"), "gear-pair-modal"]) == 2
+    err = capsys.readouterr().err
+    assert "--compilation-cache" in err and str(blocker / "cache") in err and err.count("\n") == 1

@@ -792,6 +792,103 @@ def test_wide_vectors_change_no_statistic(monkeypatch, model):
         assert_same(cov[0], cov[1], "covariance")
 
 
+@pytest.mark.parametrize("save_every, rows", [(36, 4), (13, 5), (13, 8), (6, 6), (1, 1)])
+def test_saved_scan_gives_each_step_its_own_input_when_a_block_is_formed_in_parts(save_every, rows):
+    """``saved_scan(..., rows_per_input=rows)``: every step receives the input of its own step number and the
+    parts of a block follow one another (exact integers: a part missing, repeated or shifted would show)."""
+    from pgtjax._loop import saved_scan
+
+    asked = []
+
+    def block_inputs(block_index, first_row, n_rows):
+        asked.append(n_rows)
+        return block_index * save_every + first_row + jnp.arange(n_rows) + 1
+
+    def step(carry, step_number, x):
+        return carry + 1, (step_number, x, carry)
+
+    n_blocks = 3
+    carry, saved = saved_scan(
+        step,
+        lambda carry, infos, b: infos,
+        jnp.asarray(0),
+        (jnp.zeros(save_every, int),) * 3,
+        n_blocks=n_blocks,
+        save_every=save_every,
+        block_inputs=block_inputs,
+        rows_per_input=rows,
+    )
+    numbers, inputs, counts = (np.asarray(a)[1:].ravel() for a in saved)
+    expected = np.arange(1, n_blocks * save_every + 1)
+    assert int(carry) == n_blocks * save_every
+    np.testing.assert_array_equal(numbers, expected)
+    np.testing.assert_array_equal(inputs, expected)
+    np.testing.assert_array_equal(counts, expected - 1)
+    rest = save_every % rows  # traced once each: the parts' inner scan, then the block's shorter rest
+    assert sorted(asked) == sorted([rows] + [rest] * (rest > 0))
+    with pytest.raises(ValueError, match="rows_per_input"):
+        saved_scan(step, lambda c, i, b: i, 0, None, n_blocks=1, save_every=4, rows_per_input=5)
+
+
+@pytest.mark.parametrize("model", ["gear_pair", "chain"])
+def test_long_blocks_drawn_in_parts_give_the_whole_blocks_statistics(monkeypatch, model):
+    """A saved block drawn a part at a time (its draws and step inputs formed for 4 of its 36 steps at once,
+    or 5 + 5 + 3 of 13) gives the whole blocks' statistics: double for double in physical coordinates and on
+    the gear pair (the same normals, elementwise steps); to rounding in a chain's eigen-coordinates, whose step
+    inputs XLA forms in batches of another length."""
+    from pgtjax import _montecarlo
+    from pgtjax.models import gear_pair as gp
+
+    if model == "gear_pair":
+        system, obs, dt = gp.build(), None, 1e-5
+    else:
+        (system, obs), dt = _chain_with_contacts(), 0.01
+    for n_steps, save_every, rows in [(72, 36, 4), (26, 13, 5)]:
+        for propagation in ("eigen", "physical"):
+            runs = {}
+            for parts in (False, True):
+                monkeypatch.setattr(
+                    _montecarlo, "_block_rows", lambda *a, rows=rows, parts=parts: rows if parts else a[5]
+                )
+                runs[parts] = pg.monte_carlo(
+                    system, n_samples=64, key=jax.random.key(1), dt=dt, n_steps=n_steps, save_every=save_every,
+                    observables=obs, propagation=propagation, progress=False,
+                )  # fmt: skip
+            assert float(np.max(runs[False].std_u)) > 0.0
+            for name in _EVERY_STATISTIC:
+                a, b = np.asarray(getattr(runs[False], name)), np.asarray(getattr(runs[True], name))
+                assert b.dtype == np.float64
+                if model == "gear_pair" or propagation == "physical":
+                    np.testing.assert_array_equal(a, b, err_msg=f"{name} {propagation} {save_every}")
+                else:
+                    np.testing.assert_allclose(
+                        a, b, rtol=0, atol=1e-13 * np.max(np.abs(a)), err_msg=f"{name} {save_every}"
+                    )
+
+
+def test_rows_drawn_at_once_fit_the_budget_and_prefer_a_divisor(monkeypatch):
+    from pgtjax import _montecarlo, _parallel
+
+    rows = _montecarlo._rows_per_input
+    assert rows(100, 8, 800, True) == 100  # the whole block fits
+    assert rows(100, 8, 799, True) == 50  # 99 rows fit; 50 divides 100
+    assert rows(36, 8, 5 * 8 + 4, True) == 4  # 5 fit; 4 divides 36
+    assert rows(13, 8, 5 * 8, True) == 5  # 13 is prime: 5 + 5 + 3
+    assert rows(97 * 89, 8, 96 * 8, True) == 89  # a divisor above the square root
+    assert rows(10, 10**9, 8, True) == 1  # one step's draws over the budget: one step at a time
+    assert rows(100, 8, 80, False) == 100  # keys whose blocks cannot be drawn in parts
+
+    # a run's rows: its batch's draws (physical coordinates: no step inputs), within the CPU's budget
+    from pgtjax.models import gear_pair as gp
+
+    seen = []
+    monkeypatch.setattr(_montecarlo, "_rows_per_input", lambda *a: seen.append(a) or rows(*a))
+    monkeypatch.setattr(_parallel, "CPU_DRAW_BYTES", 12345)
+    pg.monte_carlo(gp.build(), n_samples=40, key=jax.random.key(0), dt=1e-5, n_steps=20, save_every=20,
+                   propagation="physical", chunk_size=25, devices=jax.local_devices()[:1], progress=False)  # fmt: skip
+    assert seen == [(20, 8 * 25 * 1, 12345, True)]
+
+
 def test_wide_vectors_only_on_cpus_with_avx512_unless_xla_flags_choose_a_width(monkeypatch):
     from pgtjax import _parallel
 

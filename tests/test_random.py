@@ -71,6 +71,33 @@ def test_block_normals_are_each_keys_normals(width):
     assert np.mean(block == theirs) > 0.3  # most are the same double: only the last bits may differ
 
 
+@pytest.mark.parametrize("width", [1, 3])
+def test_part_of_a_block_is_that_part_of_the_whole_block(width):
+    """Rows drawn a part at a time (Monte Carlo's long saved blocks) are the whole block's rows, double for
+    double, for a first row given as a number or, compiled, as a traced integer. (Compiled and op-by-op
+    normals may differ in the last bit: XLA may contract a compiled loop's products and sums.)"""
+    keys = _keys(4)
+    whole = np.asarray(_random.block_normals(keys, 12, width))
+    whole_compiled = np.asarray(jax.jit(lambda: _random.block_normals(keys, 12, width))())
+    for first, rows in [(0, 5), (5, 5), (10, 2), (3, 1)]:
+        part = np.asarray(_random.block_normals(keys, rows, width, first, 12))
+        traced = np.asarray(
+            jax.jit(lambda f, rows=rows: _random.block_normals(keys, rows, width, f, 12))(jnp.int32(first))
+        )
+        np.testing.assert_array_equal(part, whole[first : first + rows])
+        np.testing.assert_array_equal(traced, whole_compiled[first : first + rows])
+
+
+def test_only_threefry_keys_draw_part_of_a_block_and_only_rows_of_the_block():
+    keys = jax.random.split(jax.random.key(0, impl="rbg"), 3)
+    with pytest.raises(ValueError, match="only threefry keys"):
+        _random.block_normals(keys, 2, 1, 0, 4)
+    with pytest.raises(ValueError, match="rows 3 to 4 are not in a block of 4"):
+        _random.block_normals(_keys(2), 2, 1, 3, 4)
+    with pytest.raises(ValueError, match="rows -1 to 0"):
+        _random.block_normals(_keys(2), 2, 1, -1, 4)
+
+
 def test_a_million_normals_have_the_normal_moments():
     """Sample moments within 5 standard errors of N(0, 1)'s (a gross check; exactness is the tests above)."""
     z = np.asarray(_random.block_normals(_keys(1000), 500, 2)).ravel()

@@ -20,6 +20,7 @@ import time
 import warnings
 from pathlib import Path
 
+from .._config import use_compilation_cache
 from .._failure import ProcessFailedError, SolverError
 from .._files import interrupted_message
 from .._parallel import lapack_batches_wait_on_pool, use_cpu_cores
@@ -45,6 +46,14 @@ def build_parser() -> argparse.ArgumentParser:
         "(default: one per core with jaxlib 0.11.1 or later; with jaxlib 0.10.0-0.11.0, on which a run on "
         "several CPU devices has hung (README, 'Scaling out'), JAX's one CPU device; either way the count "
         "forced in XLA_FLAGS if set)",
+    )
+    parser.add_argument(
+        "--compilation-cache",
+        default=None,
+        metavar="DIR",
+        help="keep XLA's compiled programs in the folder DIR (e.g. ~/.cache/pgtjax/xla), so that the next run "
+        "loads them instead of compiling them again (`pgtjax run`: 30 s instead of 54 s the second time); "
+        "results are the same",
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     planetary.register(sub)
@@ -147,6 +156,8 @@ def main(argv=None) -> int:
                 print(f"pgtjax: warning: {warning.message}", file=sys.stderr)
         elif not lapack_batches_wait_on_pool():  # every core, on a jaxlib that cannot hang so
             use_cpu_cores()
+        if args.compilation_cache is not None:
+            use_compilation_cache(args.compilation_cache, option="--compilation-cache")
         if out is not None:
             created = _check_writable(out)
         status = args.func(args)
