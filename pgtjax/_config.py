@@ -37,16 +37,21 @@ def use_compilation_cache(path: str | os.PathLike | None = None, *, option: str 
     AMD EPYC, docs/performance.md). Results are the same doubles: the cache holds the very programs compiled.
 
     Call it before the computations whose programs it should keep (any time: programs compiled before it
-    stay uncached). ``ValueError`` if the folder cannot be created or written. JAX checks that a cached CPU
-    program suits this machine's CPU and compiles again where it does not, so one folder may be shared
-    between machines. ``option`` names ``path`` in the error (the CLI's ``--compilation-cache``). Returns
-    the folder."""
+    stay uncached; a folder set before, by an earlier call or ``JAX_COMPILATION_CACHE_DIR``, gives way). It
+    sets JAX's thresholds (``jax_persistent_cache_min_compile_time_secs``, ``..._min_entry_size_bytes``) to 0
+    and keeps JAX's other rules: programs with host callbacks are not kept, in a run of several processes only
+    the first writes, and the folder is never pruned. JAX checks that a cached CPU program suits this
+    machine's CPU and compiles again where it does not; share a folder only with users you trust, since what
+    it holds is run. ``ValueError`` if the folder cannot be created or written (``option`` names ``path`` in
+    the message: the CLI's ``--compilation-cache``). Returns the folder."""
     folder = Path(os.path.abspath(os.path.expanduser(default_compilation_cache() if path is None else path)))
     probe = folder / f".pgtjax-write-check-{os.getpid()}"
     try:
         folder.mkdir(parents=True, exist_ok=True)
-        probe.write_bytes(b"")
-        probe.unlink()
+        try:
+            probe.write_bytes(b"")
+        finally:
+            probe.unlink(missing_ok=True)
     except OSError as err:
         raise ValueError(
             f"`{option}`: the compilation cache folder {str(folder)!r} cannot be created or written: "
@@ -57,5 +62,5 @@ def use_compilation_cache(path: str | os.PathLike | None = None, *, option: str 
     jax.config.update("jax_compilation_cache_dir", str(folder))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
-    compilation_cache.reset_cache()  # a cache JAX set up before (or its absence) gives way to this one
+    compilation_cache.reset_cache()  # a folder JAX already writes to gives way to this one
     return folder

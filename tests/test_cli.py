@@ -119,6 +119,36 @@ def test_compilation_cache_gives_the_next_process_the_compiled_programs(tmp_path
     assert hits >= 1
 
 
+_SWITCHED_FOLDER = """
+import sys
+import jax, jax.numpy as jnp
+import pgtjax as pg
+pg.use_compilation_cache(sys.argv[1])
+jax.jit(lambda x: jnp.cos(x) + 1.0)(jnp.ones(3)).block_until_ready()
+pg.use_compilation_cache(sys.argv[2])
+jax.jit(lambda x: jnp.tan(x) * 2.0)(jnp.ones(3)).block_until_ready()
+"""
+
+
+def test_compilation_cache_called_again_writes_to_the_new_folder(tmp_path):
+    """A second ``pg.use_compilation_cache`` takes effect in a process that already compiled into another
+    folder (JAX keeps writing to the first one unless its cache is reset)."""
+    import subprocess
+    import sys
+
+    first, second = tmp_path / "first", tmp_path / "second"
+    out = subprocess.run(
+        [sys.executable, "-c", _SWITCHED_FOLDER, str(first), str(second)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert out.returncode == 0, out.stderr
+    assert len(list(first.glob("jit__lambda*"))) == 1
+    assert len(list(second.glob("jit__lambda*"))) == 1
+    assert not list(tmp_path.glob("*/.pgtjax-write-check-*"))
+
+
 def test_compilation_cache_folder_that_cannot_be_made_is_refused_with_the_option_named(tmp_path, capsys):
     blocker = tmp_path / "file"
     blocker.write_text("")

@@ -886,7 +886,7 @@ def test_rows_drawn_at_once_fit_the_budget_and_prefer_a_divisor(monkeypatch):
     monkeypatch.setattr(_parallel, "CPU_DRAW_BYTES", 12345)
     pg.monte_carlo(gp.build(), n_samples=40, key=jax.random.key(0), dt=1e-5, n_steps=20, save_every=20,
                    propagation="physical", chunk_size=25, devices=jax.local_devices()[:1], progress=False)  # fmt: skip
-    assert seen == [(20, 8 * 25 * 1, 12345, True)]
+    assert seen == [(20, 8 * 2 * 25 * 1, 12345, True)]  # a step's uniforms and normals, 25 samples x 1 input
 
 
 def test_wide_vectors_only_on_cpus_with_avx512_unless_xla_flags_choose_a_width(monkeypatch):
