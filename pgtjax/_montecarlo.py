@@ -327,10 +327,12 @@ def _block_rows(system, eigen, integrator, key, t0, save_every: int, per_device:
     nd = integrator.noise_dimension(system)
     n_inputs = 0
     if eigen is not None:  # the flat step inputs of pgtjax._eigenbasis, formed for every step of a part
-        s0 = snapshot(system, t0)
-        n_inputs = jax.eval_shape(
-            lambda: ravel_pytree(eigen_step_inputs(system, eigen, s0, s0, integrator))[0]
-        ).size
+
+        def flat_inputs():  # traced for its size only: run op by op, the snapshot took 1.9 s the first time
+            s0 = snapshot(system, t0)
+            return ravel_pytree(eigen_step_inputs(system, eigen, s0, s0, integrator))[0]
+
+        n_inputs = jax.eval_shape(flat_inputs).size
     copies = 2 if nd == 1 else 3
     return _rows_per_input(
         save_every,
