@@ -33,7 +33,7 @@ def use_compilation_cache(path: str | os.PathLike | None = None, *, option: str 
     """Keep XLA's compiled programs in the folder ``path`` (default :func:`default_compilation_cache`), so that
     a later process running the same computations loads them instead of compiling them again (JAX's persistent
     compilation cache, for every program however quickly it compiled: most of pgtjax's take well under JAX's
-    default threshold of a second). ``pgtjax run`` took 30-31 s instead of 54 s the second time (2026-11-28,
+    default threshold of a second). ``pgtjax run`` took 30-32 s instead of 53-54 s the second time (2026-11-28,
     AMD EPYC, docs/performance.md). Results are the same doubles: the cache holds the very programs compiled.
 
     Call it before the computations whose programs it should keep (any time: programs compiled before it

@@ -52,7 +52,7 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         metavar="DIR",
         help="keep XLA's compiled programs in the folder DIR (no default; e.g. ~/.cache/pgtjax/xla), so that "
-        "the next run loads them instead of compiling them again (`pgtjax run`: 30 s instead of 54 s the "
+        "the next run loads them instead of compiling them again (`pgtjax run`: 31 s instead of 53 s the "
         "second time); results are the same. Give it before COMMAND",
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
