@@ -25,18 +25,23 @@ CPU_DRAW_BYTES = 8 * 2**20
 ACCELERATOR_DRAW_BYTES = 256 * 2**20
 
 
+def only_cpus(devices) -> bool:
+    """Whether every one of ``devices`` is a CPU device."""
+    return all(d.platform == "cpu" for d in devices)
+
+
 def default_chunk_size(devices, cpu: int = CPU_CHUNK_SIZE) -> int:
     """Monte Carlo samples per compiled batch and device when none is given: ``cpu`` where every device is a
     CPU, else 100,000. A GPU runs each time step as a few kernel launches whose cost a small batch does not
     cover (one H100, planetary MC: 26.9 ns per sample-step at 5,000 samples per batch, 10.3 at 20,000, 5.1
     at 100,000; ``benchmarks/results/gpu_chunks.json``); on CPU devices the default stays what it always
     was, and memory stays small."""
-    return cpu if all(d.platform == "cpu" for d in devices) else ACCELERATOR_CHUNK_SIZE
+    return cpu if only_cpus(devices) else ACCELERATOR_CHUNK_SIZE
 
 
 def draw_budget(devices) -> int:
     """:data:`CPU_DRAW_BYTES` where every device is a CPU, else :data:`ACCELERATOR_DRAW_BYTES`."""
-    return CPU_DRAW_BYTES if all(d.platform == "cpu" for d in devices) else ACCELERATOR_DRAW_BYTES
+    return CPU_DRAW_BYTES if only_cpus(devices) else ACCELERATOR_DRAW_BYTES
 
 
 #: XLA options that make its CPU loops use 512-bit vectors (XLA's default is 256 bits whatever the CPU)
@@ -61,7 +66,7 @@ def wide_vectors(devices) -> bool:
     were the same doubles); on two devices of an AMD EPYC the gear pair's Monte Carlo ran in about 0.7x the
     time (measured there only; docs/performance.md)."""
     return (
-        all(d.platform == "cpu" for d in devices)
+        only_cpus(devices)
         and cpu_has_avx512()
         and "xla_cpu_prefer_vector_width" not in os.environ.get("XLA_FLAGS", "")
     )
