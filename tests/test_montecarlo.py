@@ -888,6 +888,28 @@ def test_rows_drawn_at_once_fit_the_budget_and_prefer_a_divisor(monkeypatch):
                    propagation="physical", chunk_size=25, devices=jax.local_devices()[:1], progress=False)  # fmt: skip
     assert seen == [(20, 8 * 2 * 25 * 1, 12345, True)]  # a step's uniforms and normals, 25 samples x 1 input
 
+    # eigen-coordinates: the count of a step's inputs (from a traced snapshot) is that of the inputs the run's
+    # loop is given, read here from the shape of one step's inputs as the loop forms them
+    formed = []
+
+    def recording_scan(*args, block_inputs, **kwargs):
+        formed.append(jax.eval_shape(lambda: block_inputs(jnp.int32(0), jnp.int32(0), 1)))
+        return saved_scan(*args, block_inputs=block_inputs, **kwargs)
+
+    from pgtjax._loop import saved_scan
+
+    monkeypatch.setattr(_montecarlo, "saved_scan", recording_scan)
+    for system, n_noise in [(gp.build(), 1), (_chain_with_contacts()[0], 2)]:
+        seen.clear()
+        formed.clear()
+        pg.monte_carlo(system, n_samples=40, key=jax.random.key(0), dt=1e-5, n_steps=20, save_every=20,
+                       propagation="eigen", chunk_size=25, devices=jax.local_devices()[:1], progress=False)  # fmt: skip
+        draws, inputs = formed[0]
+        assert draws.shape[:2] == (1, 25) and inputs.shape[0] == 1 and inputs.shape[1] > 0
+        nd = draws.shape[2]
+        assert nd == n_noise
+        assert seen == [(20, 8 * ((2 if nd == 1 else 3) * 25 * nd + inputs.shape[1]), 12345, True)]
+
 
 def test_wide_vectors_only_on_cpus_with_avx512_unless_xla_flags_choose_a_width(monkeypatch):
     from pgtjax import _parallel
