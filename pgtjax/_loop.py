@@ -21,6 +21,7 @@ def saved_scan(
     rows_per_input: int | None = None,
     remat_policy=None,
     blocks_per_checkpoint: int = 1,
+    record_updates_carry: bool = False,
 ):
     """Advance ``carry`` by ``n_blocks * save_every`` steps, recording after every block.
 
@@ -33,7 +34,9 @@ def saved_scan(
     is prepended, so every saved leaf has a leading axis of ``n_blocks + 1``. With ``remat_policy`` each block
     is rematerialized in reverse mode under that ``jax.checkpoint`` policy; with ``blocks_per_checkpoint`` k > 1
     too, so is each group of k blocks, so that reverse mode keeps the carry once per group (and the k carries of
-    the group it transposes) rather than once per block. Returns ``(carry, saved)``.
+    the group it transposes) rather than once per block. With ``record_updates_carry``, ``record`` returns
+    ``(carry, saved)``: what it keeps across blocks (a running maximum over the saved times, say) goes on in the
+    carry. Returns ``(carry, saved)``.
     """
 
     rows = save_every if rows_per_input is None else rows_per_input
@@ -61,6 +64,8 @@ def saved_scan(
             if rest_rows:
                 carry, rest = steps(carry, n_parts * rows, rest_rows)
                 infos = jax.tree.map(lambda a, b: jnp.concatenate([a, b], axis=0), infos, rest)
+        if record_updates_carry:
+            return record(carry, infos, block_index)
         return carry, record(carry, infos, block_index)
 
     if blocks_per_checkpoint > 1 and remat_policy is None:

@@ -222,26 +222,31 @@ def _sample_statistics(
 
     nc = clearance.shape[0]
 
-    def statistics(state, snap, t):
+    def count(edges, values):  # weighted counts of values (batch,) in the bins of edges; outside: not counted
+        idx = jnp.clip(jnp.searchsorted(edges, values, side="right") - 1, 0, edges.shape[0] - 2)
+        inside = (values >= edges[0]) & (values <= edges[-1])
+        return jnp.zeros(edges.shape[0] - 1).at[idx].add(weights * inside)
+
+    def statistics(state, snap, t, peak):
+        """The saved time's sums, and ``peak`` (batch, n_hist), each sample's largest value of each histogram
+        quantity over the saved times so far (None at the first), updated with this one."""
         q = recorded(state, snap, t)
         delta = q[:, 2 * n : 2 * n + nc]
         mean = weights @ q / total
         m2 = weights @ (q - mean[None, :]) ** 2
         loss = weights @ (jnp.abs(delta) < clearance[None, :]).astype(q.dtype)
-        counts = []
-        for j, column in enumerate(hist_columns):
-            edges = hist_edges[j]
-            idx = jnp.searchsorted(edges, q[:, column], side="right") - 1
-            inside = (q[:, column] >= edges[0]) & (q[:, column] <= edges[-1])
-            idx = jnp.clip(idx, 0, edges.shape[0] - 2)
-            counts.append(jnp.zeros(edges.shape[0] - 1).at[idx].add(weights * inside))
+        values = q[:, list(hist_columns)]
+        peak = values if peak is None else jnp.maximum(peak, values)
+        # the values' counts, then the running maxima's: (2 n_hist, n_bins)
+        counts = [count(hist_edges[j], values[:, j]) for j in range(len(hist_columns))]
+        counts += [count(hist_edges[j], peak[:, j]) for j in range(len(hist_columns))]
         counts = jnp.stack(counts) if counts else jnp.zeros((0, 0))
         if cov_columns:  # centred sums of cross products of the selected (u, v) columns
             centred = q[:, cov_columns] - mean[jnp.asarray(cov_columns)][None, :]
             comoment = (weights[:, None] * centred).T @ centred
         else:
             comoment = jnp.zeros((0, 0))
-        return mean, m2, loss, counts, comoment
+        return (mean, m2, loss, counts, comoment), peak
 
     def block_draws(block_index, first_row, rows):
         # One RNG key per sample and saved block (not per step): the draws of sample s in block j are
@@ -255,10 +260,10 @@ def _sample_statistics(
     if eigen is None:
 
         def advance(c, step_number, step_draws):
-            state, snap0, bad = c
+            state, snap0, bad, peak = c
             snap1 = snapshot(system, t0 + dt * step_number)
             state, ok = step(state, snap0, snap1, step_draws)
-            return (state, snap1, bad + jnp.sum(weights * (~ok))), None
+            return (state, snap1, bad + jnp.sum(weights * (~ok)), peak), None
 
         block_inputs = block_draws
     else:  # what a step needs besides the state, formed for the block's steps at once, outside the step loop
@@ -277,23 +282,24 @@ def _sample_statistics(
             return block_draws(block_index, first_row, rows), inputs  # (rows, batch, nd), (rows, n_inputs)
 
         def advance(c, step_number, x):
-            state, snap, bad = c  # snap: the start's, unused here (the record forms its own)
+            state, snap, bad, peak = c  # snap: the start's, unused here (the record forms its own)
             step_draws, inputs = x
             # the step's inputs in one small array of their own: read through the scan's slice inside the
             # batch's loops, they made those loops 2.6 times slower (docs/performance.md)
             inputs = unflatten(materialized(inputs))
             state, ok = eigen_advance(system, eigen, state, inputs, step_draws)
-            return (state, snap, bad + jnp.sum(weights * (~ok))), None
+            return (state, snap, bad + jnp.sum(weights * (~ok)), peak), None
 
     def record(c, _, block_index):
-        state, snap, _ = c
+        state, snap, bad, peak = c
         t = t0 + dt * (block_index + 1) * save_every
         if eigen is not None:  # not carried through the steps
             snap = snapshot(system, t0 + dt * ((block_index + 1) * save_every))
-        return statistics(state, snap, t)
+        saved, peak = statistics(state, snap, t, peak)
+        return (state, c[1], bad, peak), saved
 
-    first = statistics(state, s0, t0)
-    carry = (state, s0, jnp.array(0.0))
+    first, peak = statistics(state, s0, t0, None)
+    carry = (state, s0, jnp.array(0.0), peak)
     carry, saved = saved_scan(
         advance,
         record,
@@ -303,6 +309,7 @@ def _sample_statistics(
         save_every=save_every,
         block_inputs=block_inputs,
         rows_per_input=rows_per_input,
+        record_updates_carry=True,
     )
     return saved, carry[2]
 
@@ -559,7 +566,10 @@ def monte_carlo(
             per GPU (threefry keys, JAX's default; another generator's draws are formed for the whole block),
             so that a long ``save_every`` costs neither memory nor time.
         histograms: ``{quantity: bin_edges}`` with quantity names from :func:`quantity_names`
-            (e.g. ``"delta:mesh"``); all edge arrays must have the same length.
+            (e.g. ``"delta:mesh"``); all edge arrays must have the same length. Each quantity's running
+            maximum over the saved times is counted too (``peak_histograms`` of the result: the distribution
+            of the largest value from ``t0`` on, e.g. of a meshing force); values outside the edges are not
+            counted.
         histogram_times: times (s) at which the histograms are reported (nearest saved time).
         progress: show a progress bar over chunks.
         propagation: coordinates the samples are stepped in. ``"eigen"``: the real eigenbasis of the
@@ -685,6 +695,8 @@ def monte_carlo(
             processes=n_proc,
             process=proc,
         )
+        if histograms:  # a checkpoint from before peak histograms (2026-11-28) holds the values' counts only
+            description["histogram_counts"] = "values and running maxima"
         rows_per_input = _block_rows(system, eigen, integrator, key, t0, save_every, per_device, devices)
         if eigen is not None:  # the steps' inputs formed per saved block, or per part of a long one, since
             # 2026-11-28 (rounding differs): a checkpoint of an eigen run from before, or with parts of another
@@ -783,6 +795,9 @@ def monte_carlo(
         histogram_times=jnp.asarray(times[hist_idx]),
         histogram_edges={name: jnp.asarray(e) for name, e in zip(histograms, edges)},
         histograms={name: jnp.asarray(counts[hist_idx, j]) for j, name in enumerate(histograms)},
+        peak_histograms={
+            name: jnp.asarray(counts[hist_idx, len(histograms) + j]) for j, name in enumerate(histograms)
+        },
         contact_loss_probability=jnp.asarray(loss / total_n),
         unconverged=jnp.asarray(bad),
         mean_obs=jnp.asarray(mu_o),

@@ -66,6 +66,7 @@ def run(key=None, **kw):
 def arrays(result) -> dict:
     out = {f: np.asarray(getattr(result, f)) for f in FIELDS}
     out["histogram"] = np.asarray(result.histograms["delta:mesh"])
+    out["peak_histogram"] = np.asarray(result.peak_histograms["delta:mesh"])
     out["n_samples"] = np.asarray(result.n_samples)
     return out
 

@@ -67,6 +67,7 @@ def test_same_key_same_statistics_whatever_the_chunk_size():
     np.testing.assert_allclose(a.mean_u, b.mean_u, rtol=1e-12, atol=1e-15)
     np.testing.assert_allclose(a.std_u, b.std_u, rtol=1e-10)
     np.testing.assert_array_equal(a.histograms["u:x1"], b.histograms["u:x1"])
+    np.testing.assert_array_equal(a.peak_histograms["u:x1"], b.peak_histograms["u:x1"])
     assert b.n_samples == 301
     # histogram counts are the samples inside the edges at the requested time
     assert 0 < float(a.histograms["u:x1"].sum()) <= 301
@@ -927,3 +928,53 @@ def test_wide_vectors_only_on_cpus_with_avx512_unless_xla_flags_choose_a_width(m
     monkeypatch.delenv("XLA_FLAGS")
     monkeypatch.setattr(_parallel, "cpu_has_avx512", lambda: False)
     assert not _parallel.wide_vectors(cpu)
+
+
+def _cumulative(counts):
+    return np.cumsum(np.asarray(counts), axis=-1)
+
+
+def test_peak_histograms_of_a_noise_free_run_count_the_running_maximum_that_simulate_gives():
+    """Without noise every sample follows the deterministic response, which :func:`pgtjax.simulate` computes
+    with its own time loop: at each saved time all samples lie in the bin of that response's largest meshing
+    force over the saved times so far."""
+    import equinox as eqx
+
+    from pgtjax.models import gear_pair as gp
+
+    system = gp.build()
+    quiet = eqx.tree_at(lambda s: s.spectral_density, system, jnp.zeros_like(system.spectral_density))
+    kw = dict(dt=1e-5, n_steps=400, save_every=10)
+    force = np.asarray(pg.simulate(quiet, **kw).force[:, 0])
+    edges = np.linspace(-0.013 * force.max(), 1.05 * force.max(), 61)  # force 0 (contact lost) inside a bin
+    mc = pg.monte_carlo(quiet, n_samples=7, key=KEY, progress=False, **kw,
+                        histograms={"force:mesh": edges}, histogram_times=np.asarray(mc_times := np.arange(41) * 1e-4))  # fmt: skip
+    np.testing.assert_allclose(np.asarray(mc.histogram_times), mc_times, rtol=0, atol=1e-12)
+    peak = np.maximum.accumulate(force)
+    # the test's bins are decisive: no value within 1e-9 of an edge
+    assert np.min(np.abs(force[:, None] - edges[None, :])) > 1e-9 * force.max()
+    for counts, values in ((mc.histograms, force), (mc.peak_histograms, peak)):
+        got = np.asarray(counts["force:mesh"])
+        assert got.dtype == np.float64 and got.shape == (41, 60)
+        expected = np.zeros_like(got)
+        expected[np.arange(41), np.searchsorted(edges, values, side="right") - 1] = 7.0
+        np.testing.assert_array_equal(got, expected)
+    assert np.sum(np.argmax(mc.peak_histograms["force:mesh"], 1) != np.argmax(mc.histograms["force:mesh"], 1)) > 10
+
+
+def test_peak_histograms_lie_above_every_earlier_histogram_and_grow_with_time():
+    """With noise: each sample's running maximum is at least its value at every saved time so far, so the
+    maxima's cumulative counts lie below the values' at every earlier time and fall with time; at t0 they
+    are the values' own."""
+    from pgtjax.models import gear_pair as gp
+
+    system = gp.build()
+    n, edges = 300, np.linspace(-1e6, 2e6, 301)
+    mc = pg.monte_carlo(system, n_samples=n, key=KEY, dt=1e-5, n_steps=300, save_every=10, progress=False,
+                        histograms={"force:mesh": edges}, histogram_times=np.arange(31) * 1e-4)  # fmt: skip
+    values, peaks = (_cumulative(h["force:mesh"]) for h in (mc.histograms, mc.peak_histograms))
+    assert np.all(values[:, -1] == n) and np.all(peaks[:, -1] == n)  # the edges hold every sample
+    np.testing.assert_array_equal(peaks[0], values[0])
+    assert np.all(np.diff(peaks, axis=0) <= 0)
+    assert np.all(peaks <= np.minimum.accumulate(values, axis=0))
+    assert np.any(peaks < np.minimum.accumulate(values, axis=0))  # the maxima are not the values themselves

@@ -54,6 +54,7 @@ def _assert_same(got: dict, ref: dict, rtol: float):
         scale = np.max(np.abs(b))
         assert np.max(np.abs(a - b)) <= rtol * scale, (name, np.max(np.abs(a - b)) / scale)
     np.testing.assert_array_equal(got["histogram"], ref["histogram"])
+    np.testing.assert_array_equal(got["peak_histogram"], ref["peak_histogram"])
     assert int(got["n_samples"]) == int(ref["n_samples"]) == 203
 
 
