@@ -947,9 +947,10 @@ def test_peak_histograms_of_a_noise_free_run_count_the_running_maximum_that_simu
     kw = dict(dt=1e-5, n_steps=400, save_every=10)
     force = np.asarray(pg.simulate(quiet, **kw).force[:, 0])
     edges = np.linspace(-0.013 * force.max(), 1.05 * force.max(), 61)  # force 0 (contact lost) inside a bin
+    saved_times = np.arange(41) * 1e-4
     mc = pg.monte_carlo(quiet, n_samples=7, key=KEY, progress=False, **kw,
-                        histograms={"force:mesh": edges}, histogram_times=np.asarray(mc_times := np.arange(41) * 1e-4))  # fmt: skip
-    np.testing.assert_allclose(np.asarray(mc.histogram_times), mc_times, rtol=0, atol=1e-12)
+                        histograms={"force:mesh": edges}, histogram_times=saved_times)  # fmt: skip
+    np.testing.assert_allclose(np.asarray(mc.histogram_times), saved_times, rtol=0, atol=1e-12)
     peak = np.maximum.accumulate(force)
     # the test's bins are decisive: no value within 1e-9 of an edge
     assert np.min(np.abs(force[:, None] - edges[None, :])) > 1e-9 * force.max()
@@ -959,7 +960,10 @@ def test_peak_histograms_of_a_noise_free_run_count_the_running_maximum_that_simu
         expected = np.zeros_like(got)
         expected[np.arange(41), np.searchsorted(edges, values, side="right") - 1] = 7.0
         np.testing.assert_array_equal(got, expected)
-    assert np.sum(np.argmax(mc.peak_histograms["force:mesh"], 1) != np.argmax(mc.histograms["force:mesh"], 1)) > 10
+    assert (
+        np.sum(np.argmax(mc.peak_histograms["force:mesh"], 1) != np.argmax(mc.histograms["force:mesh"], 1))
+        > 10
+    )
 
 
 def test_peak_histograms_lie_above_every_earlier_histogram_and_grow_with_time():
