@@ -127,7 +127,9 @@ def _check_histogram_times(histogram_times, histograms, t0, duration, save_inter
     except (TypeError, ValueError):
         raise ValueError(f"`histogram_times` must be numbers (s), got {histogram_times!r}") from None
     if values and not histograms:
-        raise ValueError("`histogram_times` were given without `histograms` (quantity -> bin edges) to count")
+        raise ValueError(
+            "`histogram_times` were given without `histograms` or `peaks` (quantity -> bin edges) to count"
+        )
     t0, end = float(t0), float(t0) + float(duration)
     for t in values:
         if not (np.isfinite(t) and t0 - 0.5 * float(save_interval) <= t <= end + 0.5 * float(save_interval)):
@@ -179,6 +181,7 @@ def _sample_statistics(
     save_every,
     integrator,
     hist_columns,
+    peak_columns=(),
     cov_columns=(),
     rows_per_input=None,
 ):
@@ -228,18 +231,19 @@ def _sample_statistics(
         return jnp.zeros(edges.shape[0] - 1).at[idx].add(weights * inside)
 
     def statistics(state, snap, t, peak):
-        """The saved time's sums, and ``peak`` (batch, n_hist), each sample's largest value of each histogram
-        quantity over the saved times so far (None at the first), updated with this one."""
+        """The saved time's sums, and ``peak`` (batch, n_peaks), each sample's largest magnitude of each of
+        the ``peaks`` quantities over the saved times so far (None at the first), updated with this one."""
         q = recorded(state, snap, t)
         delta = q[:, 2 * n : 2 * n + nc]
         mean = weights @ q / total
         m2 = weights @ (q - mean[None, :]) ** 2
         loss = weights @ (jnp.abs(delta) < clearance[None, :]).astype(q.dtype)
-        values = q[:, list(hist_columns)]
-        peak = values if peak is None else jnp.maximum(peak, values)
-        # the values' counts, then the running maxima's: (2 n_hist, n_bins)
-        counts = [count(hist_edges[j], values[:, j]) for j in range(len(hist_columns))]
-        counts += [count(hist_edges[j], peak[:, j]) for j in range(len(hist_columns))]
+        magnitude = jnp.abs(q[:, list(peak_columns)])
+        peak = magnitude if peak is None else jnp.maximum(peak, magnitude)
+        # the values' counts, then the peaks': (n_hist + n_peaks, n_bins)
+        n_hist = len(hist_columns)
+        counts = [count(hist_edges[j], q[:, c]) for j, c in enumerate(hist_columns)]
+        counts += [count(hist_edges[n_hist + j], peak[:, j]) for j in range(len(peak_columns))]
         counts = jnp.stack(counts) if counts else jnp.zeros((0, 0))
         if cov_columns:  # centred sums of cross products of the selected (u, v) columns
             centred = q[:, cov_columns] - mean[jnp.asarray(cov_columns)][None, :]
@@ -542,6 +546,7 @@ def monte_carlo(
     chunk_size: int | None = None,
     histograms: Mapping[str, Sequence[float]] | None = None,
     histogram_times: Sequence[float] = (),
+    peaks: Mapping[str, Sequence[float]] | None = None,
     progress: bool = True,
     propagation: str = "auto",
     throw: bool = True,
@@ -566,11 +571,13 @@ def monte_carlo(
             per GPU (threefry keys, JAX's default; another generator's draws are formed for the whole block),
             so that a long ``save_every`` costs neither memory nor time.
         histograms: ``{quantity: bin_edges}`` with quantity names from :func:`quantity_names`
-            (e.g. ``"delta:mesh"``); all edge arrays must have the same length. Each quantity's running
-            maximum over the saved times is counted too (``peak_histograms`` of the result: the distribution
-            of the largest value from ``t0`` on, e.g. of a meshing force); values outside the edges are not
-            counted.
+            (e.g. ``"delta:mesh"``); all edge arrays (these and ``peaks``'s) must have the same length; values
+            outside the edges are not counted.
         histogram_times: times (s) at which the histograms are reported (nearest saved time).
+        peaks: ``{quantity: bin_edges}``: each sample's largest magnitude ``|value|`` of the quantity over the
+            saved times from ``t0`` to each histogram time, counted in those bins (the result's
+            ``peak_histograms``: the distribution of the peak, e.g. of a meshing force's, whence the
+            probability that it has reached a level by then).
         progress: show a progress bar over chunks.
         propagation: coordinates the samples are stepped in. ``"eigen"``: the real eigenbasis of the
             contact-free Newmark map (:mod:`pgtjax._eigenbasis`; constant K and C only), O(n (nc + n_draws))
@@ -638,22 +645,31 @@ def monte_carlo(
                 f"`histograms` must be a dict {{quantity name: bin edges}}, e.g. {{'u:x': np.linspace(-1e-4, 1e-4, 41)}}, "
                 f"got {type(histograms).__name__}"
             )
-        histograms = dict(histograms or {})
-        hist_columns, edges = [], []
-        for name, e in histograms.items():
-            if name not in names:
-                raise ValueError(f"unknown histogram quantity {name!r}; choose from {names}")
-            e = np.asarray(e, dtype=np.float64)
-            if e.ndim != 1 or e.size < 2 or np.any(np.diff(e) <= 0) or not np.all(np.isfinite(e)):
-                raise ValueError(
-                    f"histogram edges for {name!r} must be a finite increasing 1-D array (>= 2 edges)"
-                )
-            hist_columns.append(names.index(name))
-            edges.append(e)
+        if peaks is not None and not isinstance(peaks, Mapping):
+            raise ValueError(
+                f"`peaks` must be a dict {{quantity name: bin edges}}, e.g. {{'force:mesh': np.linspace(0, 5e5, 51)}}, "
+                f"got {type(peaks).__name__}"
+            )
+        histograms, peaks = dict(histograms or {}), dict(peaks or {})
+        hist_columns, peak_columns, edges = [], [], []
+        for option, bins, columns in (
+            ("histograms", histograms, hist_columns),
+            ("peaks", peaks, peak_columns),
+        ):
+            for name, e in bins.items():
+                if name not in names:
+                    raise ValueError(f"unknown quantity {name!r} in `{option}`; choose from {names}")
+                e = np.asarray(e, dtype=np.float64)
+                if e.ndim != 1 or e.size < 2 or np.any(np.diff(e) <= 0) or not np.all(np.isfinite(e)):
+                    raise ValueError(
+                        f"`{option}` edges for {name!r} must be a finite increasing 1-D array (>= 2 edges)"
+                    )
+                columns.append(names.index(name))
+                edges.append(e)
         if len({e.size for e in edges}) > 1:
-            raise ValueError("all histogram edge arrays must have the same length")
+            raise ValueError("all edge arrays of `histograms` and `peaks` must have the same length")
         histogram_times = _check_histogram_times(
-            histogram_times, histograms, t0, dt * n_steps, dt * save_every
+            histogram_times, histograms or peaks, t0, dt * n_steps, dt * save_every
         )
         n_saved = n_steps // save_every + 1
         cov_size = len(covariance_index(system, covariance_dofs))
@@ -695,8 +711,10 @@ def monte_carlo(
             processes=n_proc,
             process=proc,
         )
-        if histograms:  # a checkpoint from before peak histograms (2026-11-28) holds the values' counts only
-            description["histogram_counts"] = "values and running maxima"
+        if (
+            peaks
+        ):  # an entry only where there are peaks, so that a checkpoint from before `peaks` still resumes
+            description["peaks"] = list(peaks)
         rows_per_input = _block_rows(system, eigen, integrator, key, t0, save_every, per_device, devices)
         if eigen is not None:  # the steps' inputs formed per saved block, or per part of a long one, since
             # 2026-11-28 (rounding differs): a checkpoint of an eigen run from before, or with parts of another
@@ -742,6 +760,7 @@ def monte_carlo(
                 save_every=save_every,
                 integrator=integrator,
                 hist_columns=tuple(hist_columns),
+                peak_columns=tuple(peak_columns),
                 cov_columns=cov_columns,
                 rows_per_input=rows_per_input,
             )
@@ -795,8 +814,9 @@ def monte_carlo(
         histogram_times=jnp.asarray(times[hist_idx]),
         histogram_edges={name: jnp.asarray(e) for name, e in zip(histograms, edges)},
         histograms={name: jnp.asarray(counts[hist_idx, j]) for j, name in enumerate(histograms)},
+        peak_edges={name: jnp.asarray(e) for name, e in zip(peaks, edges[len(histograms) :])},
         peak_histograms={
-            name: jnp.asarray(counts[hist_idx, len(histograms) + j]) for j, name in enumerate(histograms)
+            name: jnp.asarray(counts[hist_idx, len(histograms) + j]) for j, name in enumerate(peaks)
         },
         contact_loss_probability=jnp.asarray(loss / total_n),
         unconverged=jnp.asarray(bad),

@@ -90,7 +90,7 @@ def to_xarray(result, **attributes):
             dims = tuple(f"{var}_dim{i}" for i in range(value.ndim))
             unit = (
                 "the quantity's (m for deflections, N for forces)"
-                if field == "histogram_edges"
+                if field in ("histogram_edges", "peak_edges")
                 else "1 (count)"
             )
             variables[var] = (dims, value, {"units": unit, "long_name": f"{field}[{key!r}]"})

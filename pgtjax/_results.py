@@ -206,9 +206,10 @@ class MonteCarloResult(_Labelled, _Covariance):
 
     ``mean_*``/``std_*`` as in :class:`MomentResult` (``std`` with the 1/(N-1) normalisation, thesis
     Eq. 4.66); ``histograms`` maps a quantity name to counts of shape ``(len(histogram_times), n_bins)`` over
-    ``histogram_edges[name]``; ``peak_histograms`` likewise counts each sample's largest value of the quantity
-    over the saved times from ``t0`` to each histogram time (the distribution of its running maximum, whence
-    first-passage probabilities; a peak between saved times is not seen); ``unconverged`` counts (sample, step) pairs whose contact Newton solve did not
+    ``histogram_edges[name]``; ``peak_histograms`` likewise counts, over ``peak_edges[name]``, each sample's
+    largest magnitude of the quantity over the saved times from ``t0`` to each histogram time (the
+    distribution of its peak, whence the probability of reaching a level by then; a peak between saved
+    times is not seen); ``unconverged`` counts (sample, step) pairs whose contact Newton solve did not
     reach its tolerance; ``propagation`` says whether the samples were stepped in physical or eigen-coordinates
     (:mod:`pgtjax._eigenbasis`).
     """
@@ -234,6 +235,7 @@ class MonteCarloResult(_Labelled, _Covariance):
     covariance: Float64[Array, "n_times n_cov n_cov"] | None = None  # 1/(N-1); see covariance_dofs
     covariance_dofs: tuple[str, ...] = eqx.field(static=True, default=())
     # empty in files written before peak histograms existed (2026-11-28)
+    peak_edges: dict = eqx.field(default_factory=dict)
     peak_histograms: dict = eqx.field(default_factory=dict)
 
     def standard_error(self, what: str = "u"):

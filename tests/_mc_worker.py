@@ -57,6 +57,7 @@ def run(key=None, **kw):
         save_every=50,
         histograms={"delta:mesh": np.linspace(1.5e-5, 4.5e-5, 17)},
         histogram_times=[0.002],
+        peaks={"delta:mesh": np.linspace(2e-5, 8e-5, 17)},
         covariance_dofs="all",
         progress=False,
         **kw,
@@ -67,6 +68,7 @@ def arrays(result) -> dict:
     out = {f: np.asarray(getattr(result, f)) for f in FIELDS}
     out["histogram"] = np.asarray(result.histograms["delta:mesh"])
     out["peak_histogram"] = np.asarray(result.peak_histograms["delta:mesh"])
+    assert out["peak_histogram"].sum() > 0
     out["n_samples"] = np.asarray(result.n_samples)
     return out
 

@@ -266,6 +266,14 @@ API = [
     ("histogram time negative", lambda: mc(histograms=HIST, histogram_times=[-5.0]), "`histogram_times`"),
     ("histogram time NaN", lambda: mc(histograms=HIST, histogram_times=[np.nan]), "`histogram_times`"),
     ("histogram times without histograms", lambda: mc(histogram_times=[0.1]), "`histogram_times`"),
+    ("peaks a list", lambda: mc(peaks=["u:x"]), "`peaks`"),
+    ("peak quantity unknown", lambda: mc(peaks={"u:y": [0.0, 1.0]}), "'u:y' in `peaks`"),
+    ("peak edges with a NaN", lambda: mc(peaks={"u:x": [0.0, np.nan]}), "`peaks` edges for 'u:x'"),
+    (
+        "peak and histogram edges of different lengths",
+        lambda: mc(histograms=HIST, peaks={"u:x": [0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0]}),
+        "`histograms` and `peaks`",
+    ),
     ("checkpoint_every zero", lambda: mc(checkpoint_every=0), "`checkpoint_every`"),
     # modal analysis, static solve
     ("modal K = -I", lambda: pg.modal_analysis(chain(stiffness=-np.eye(2))), "negative eigenvalue"),

@@ -125,6 +125,16 @@ CASES = [
         "--resume",
     ),  # fmt: skip
     (
+        "peak forces without samples",
+        lambda d: ["planetary", "--peak-forces", "20", "--samples", "0", "--out", str(d / "o")],
+        "--peak-forces",
+    ),  # fmt: skip
+    (
+        "peak forces negative",
+        lambda d: ["planetary", "--peak-forces", "-3", "--out", str(d / "o")],
+        "--peak-forces",
+    ),  # fmt: skip
+    (
         "resume without checkpoint",
         lambda d: ["planetary", "--resume", "--out", str(d / "o")],
         "run without --resume",

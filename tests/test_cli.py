@@ -59,7 +59,7 @@ def test_parameters_toml_reproduces_the_run_and_set_overrides_name_their_key(tmp
     import pgtjax as pg
     from pgtjax._summary import missing_units
 
-    small = ["--samples", "20", "--periods", "0.01", "--no-sensitivities", "--quiet"]
+    small = ["--samples", "20", "--periods", "0.01", "--no-sensitivities", "--quiet", "--peak-forces", "30"]
     first, second = tmp_path / "first", tmp_path / "second"
     assert main(["run", *small, "--set", "ring.rim_thickness=0.1", "--out", str(first)]) == 0
     written = (first / "parameters.toml").read_text()
@@ -69,7 +69,8 @@ def test_parameters_toml_reproduces_the_run_and_set_overrides_name_their_key(tmp
     summary = [json.loads((d / "summary.json").read_text()) for d in (first, second)]
     assert summary[0] == summary[1]
     assert missing_units(summary[0]) == [], "every number in summary.json carries a unit"
-    assert {"sl_vs_mc", "rim_thickness", "supports", "modes"} <= set(summary[0])
+    assert {"sl_vs_mc", "rim_thickness", "supports", "modes", "peak_meshing_forces"} <= set(summary[0])
+    assert (first / "planetary_peak_forces.png").is_file()
     assert_readme_lists_every_file(first)
     a, _ = pg.load_results(first / "planetary_sl_force.npz")
     b, _ = pg.load_results(second / "planetary_sl_force.npz")

@@ -61,6 +61,7 @@ def test_same_key_same_statistics_whatever_the_chunk_size():
         progress=False,
         histograms={"u:x1": np.linspace(-0.2, 0.2, 21)},
         histogram_times=[0.8],
+        peaks={"u:x1": np.linspace(0.0, 0.4, 21)},
     )
     a = pg.monte_carlo(system, chunk_size=301, **kw)
     b = pg.monte_carlo(system, chunk_size=64, **kw)
@@ -934,10 +935,10 @@ def _cumulative(counts):
     return np.cumsum(np.asarray(counts), axis=-1)
 
 
-def test_peak_histograms_of_a_noise_free_run_count_the_running_maximum_that_simulate_gives():
+def test_peaks_of_a_noise_free_run_count_the_largest_force_that_simulate_gives():
     """Without noise every sample follows the deterministic response, which :func:`pgtjax.simulate` computes
     with its own time loop: at each saved time all samples lie in the bin of that response's largest meshing
-    force over the saved times so far."""
+    force magnitude over the saved times so far."""
     import equinox as eqx
 
     from pgtjax.models import gear_pair as gp
@@ -948,9 +949,11 @@ def test_peak_histograms_of_a_noise_free_run_count_the_running_maximum_that_simu
     force = np.asarray(pg.simulate(quiet, **kw).force[:, 0])
     edges = np.linspace(-0.013 * force.max(), 1.05 * force.max(), 61)  # force 0 (contact lost) inside a bin
     saved_times = np.arange(41) * 1e-4
-    mc = pg.monte_carlo(quiet, n_samples=7, key=KEY, progress=False, **kw,
-                        histograms={"force:mesh": edges}, histogram_times=saved_times)  # fmt: skip
+    mc = pg.monte_carlo(quiet, n_samples=7, key=KEY, progress=False, **kw, histograms={"force:mesh": edges},
+                        peaks={"force:mesh": edges}, histogram_times=saved_times)  # fmt: skip
     np.testing.assert_allclose(np.asarray(mc.histogram_times), saved_times, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(np.asarray(mc.peak_edges["force:mesh"]), edges)
+    assert force.min() >= 0.0  # so that the largest magnitude is the largest value
     peak = np.maximum.accumulate(force)
     # the test's bins are decisive: no value within 1e-9 of an edge
     assert np.min(np.abs(force[:, None] - edges[None, :])) > 1e-9 * force.max()
@@ -960,25 +963,31 @@ def test_peak_histograms_of_a_noise_free_run_count_the_running_maximum_that_simu
         expected = np.zeros_like(got)
         expected[np.arange(41), np.searchsorted(edges, values, side="right") - 1] = 7.0
         np.testing.assert_array_equal(got, expected)
-    assert (
-        np.sum(np.argmax(mc.peak_histograms["force:mesh"], 1) != np.argmax(mc.histograms["force:mesh"], 1))
-        > 10
-    )
+    moved = np.argmax(mc.peak_histograms["force:mesh"], 1) != np.argmax(mc.histograms["force:mesh"], 1)
+    assert np.sum(moved) > 10
 
 
-def test_peak_histograms_lie_above_every_earlier_histogram_and_grow_with_time():
-    """With noise: each sample's running maximum is at least its value at every saved time so far, so the
-    maxima's cumulative counts lie below the values' at every earlier time and fall with time; at t0 they
-    are the values' own."""
+def test_peaks_lie_above_every_earlier_magnitude_and_grow_with_time():
+    """With noise: each sample's peak is at least its magnitude at every saved time so far, so the peaks'
+    cumulative counts lie below the magnitudes' at every earlier time and fall with time; at t0 they are the
+    magnitudes' own. The magnitudes' histogram is that of the values over edges symmetric about 0, folded."""
     from pgtjax.models import gear_pair as gp
 
     system = gp.build()
-    n, edges = 300, np.linspace(-1e6, 2e6, 301)
+    n, peak_edges = 300, np.linspace(0.0, 2e6, 201)
+    value_edges = np.concatenate([-peak_edges[:0:-1], peak_edges])  # -2e6 ... 2e6, 0 an edge
     mc = pg.monte_carlo(system, n_samples=n, key=KEY, dt=1e-5, n_steps=300, save_every=10, progress=False,
-                        histograms={"force:mesh": edges}, histogram_times=np.arange(31) * 1e-4)  # fmt: skip
-    values, peaks = (_cumulative(h["force:mesh"]) for h in (mc.histograms, mc.peak_histograms))
+                        histograms={"force:mesh": value_edges[::2]}, peaks={"force:mesh": peak_edges},
+                        histogram_times=np.arange(31) * 1e-4)  # fmt: skip
+    signed = np.asarray(mc.histograms["force:mesh"])  # bins of width 2e4 over [-2e6, 2e6]
+    half = signed.shape[1] // 2
+    magnitudes = signed[:, half:] + signed[:, :half][:, ::-1]  # |value| in bins of 2e4 over [0, 2e6]
+    peaks = np.asarray(mc.peak_histograms["force:mesh"]).reshape(31, 100, 2).sum(axis=2)  # the same bins
+    values, peaks = _cumulative(magnitudes), _cumulative(peaks)
     assert np.all(values[:, -1] == n) and np.all(peaks[:, -1] == n)  # the edges hold every sample
     np.testing.assert_array_equal(peaks[0], values[0])
     assert np.all(np.diff(peaks, axis=0) <= 0)
     assert np.all(peaks <= np.minimum.accumulate(values, axis=0))
-    assert np.any(peaks < np.minimum.accumulate(values, axis=0))  # the maxima are not the values themselves
+    assert np.any(
+        peaks < np.minimum.accumulate(values, axis=0)
+    )  # the peaks are not the magnitudes themselves

@@ -465,7 +465,14 @@ def test_study_grids_outputs_and_symmetry_zero_dofs(tmp_path):
 
     p = small_params()
     result = study.run_study(
-        p, n_samples=200, periods=0.02, n_saves=4, sl_refine=3, key=jax.random.key(2), progress=False
+        p,
+        n_samples=200,
+        periods=0.02,
+        n_saves=4,
+        sl_refine=3,
+        key=jax.random.key(2),
+        progress=False,
+        peak_force_bins=40,
     )
     st = result.settings
     assert st["sl_save_every"] * st["sl_refine"] == st["mc_save_every"] and st["sl_refine"] == 3
@@ -505,6 +512,7 @@ def test_study_grids_outputs_and_symmetry_zero_dofs(tmp_path):
         "planetary_ring_contact.png",
         "planetary_mesh_forces.png",
         "planetary_mesh_forces_zoom.png",
+        "planetary_peak_forces.png",
         "planetary_rim_thickness.png",
         "planetary_sl_force.npz",
         "planetary_mc.npz",
@@ -516,6 +524,15 @@ def test_study_grids_outputs_and_symmetry_zero_dofs(tmp_path):
     sens = _ring_sensitivities()  # another model's, whose summary section carries the same units
     full = study.summary(result, sweeps=sweeps, modal=study.modal_table(p), sens=sens)
     assert missing_units(full) == [] and missing_units({**full, "bare": 1.0}) == ["bare"]
+    # the peak meshing forces: every sample counted within the bins, quantiles in order, at or above each
+    # sample's magnitude at the end (the peaks' median is at least the end's smallest |mean| - 3 std)
+    peaks = full["peak_meshing_forces"]
+    assert set(peaks["per_mesh"]) == set(sl.contact_names) and peaks["n_samples_count"] == 200
+    end = np.abs(np.asarray(mc.force_mean[-1])) - 3 * np.asarray(mc.force_std[-1])
+    for k, name in enumerate(sl.contact_names):
+        entry = peaks["per_mesh"][name]
+        assert entry["beyond_top_edge_fraction"] == 0.0 and entry["q99_N"] is None  # 200 samples: 2 beyond
+        assert end[k] <= entry["median_N"] <= entry["q90_N"] <= entry["top_edge_N"]
     thin = full["rim_thickness"]["variants"]["t_r = 100 mm"]["ring_node2_tangential"]
     assert thin["unit"] == "m" and thin["min_mean"] <= thin["time_average_of_mean"] <= thin["max_mean"]
     derivative = full["sensitivities"]["quantities"][1]["derivatives"][1]
@@ -540,6 +557,8 @@ def test_study_grids_outputs_and_symmetry_zero_dofs(tmp_path):
         (dict(n_samples=-3), "0 \\(no Monte Carlo\\) or"),
         (dict(n_samples=10.0), "n_samples"),
         (dict(criteria=()), "criteria"),
+        (dict(peak_force_bins=10), "peak_force_bins"),  # without samples
+        (dict(peak_force_bins=-1, n_samples=4), "peak_force_bins"),
     ]:
         with pytest.raises(ValueError, match=match):
             study.run_study(p, **{"n_samples": 0, "periods": 0.02, **bad})

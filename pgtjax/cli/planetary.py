@@ -86,6 +86,15 @@ def _add_planetary_options(p: argparse.ArgumentParser, quick: bool) -> None:
     p.add_argument("--no-sensitivities", action="store_true", help="skip the autodiff sensitivities")
     p.add_argument("--seed", type=seed, default=0, help="PRNG seed of the Monte Carlo")
     p.add_argument(
+        "--peak-forces",
+        type=nonneg_int,
+        default=0,
+        metavar="BINS",
+        help="Monte Carlo also counts every meshing force's peak (largest magnitude since the start) in BINS "
+        "bins from 0 N to SL's largest |mean| + 8 std: planetary_peak_forces.png and peak_meshing_forces in "
+        "summary.json give the probability that it has reached a level (default 0: off)",
+    )
+    p.add_argument(
         "--chunk-size",
         type=positive_int,
         default=None,
@@ -118,6 +127,8 @@ def _run_planetary(args) -> int:
 
     if args.resume and not args.samples:
         raise ValueError("`--resume` continues a Monte Carlo; it needs `--samples` >= 2")
+    if args.peak_forces and not args.samples:
+        raise ValueError("`--peak-forces` counts Monte Carlo samples; it needs `--samples` >= 2")
     started = time.time()
     process = start_processes(args)  # before any JAX computation
     params, data = _params(args)
@@ -139,6 +150,7 @@ def _run_planetary(args) -> int:
         checkpoint=checkpoint_path(args, out) if args.samples else None,
         checkpoint_every=args.checkpoint_every,
         resume=args.resume,
+        peak_force_bins=args.peak_forces,
     )
     if args.samples:  # before any work: the checkpoint's folder, and a checkpoint to resume of this very run
         try:

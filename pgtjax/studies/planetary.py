@@ -142,9 +142,12 @@ def run_study(
     checkpoint=None,
     checkpoint_every=1,
     resume=False,
+    peak_force_bins=0,
 ) -> PlanetaryStudy:
     """SL (each criterion) and MC over ``periods`` carrier periods; ``n_samples = 0`` skips MC.
-    ``checkpoint``, ``checkpoint_every``, ``resume``: as in :func:`pgtjax.monte_carlo`.
+    ``checkpoint``, ``checkpoint_every``, ``resume``: as in :func:`pgtjax.monte_carlo`. ``peak_force_bins``
+    > 0: MC also counts every meshing force's peak (its largest magnitude from the start) in that many bins
+    (:func:`peak_force_bins_of`).
 
     MC is saved about ``n_saves`` times and SL ``sl_refine`` times as often (:func:`_grid`;
     :meth:`PlanetaryStudy.sl_on_mc_grid` gives SL on MC's grid)."""
@@ -154,6 +157,9 @@ def run_study(
         raise ValueError("`criteria` must name at least one SL criterion (force, energy)")
     for criterion in criteria:
         as_criterion(criterion)
+    check_count("peak_force_bins", peak_force_bins, minimum=0)
+    if peak_force_bins and not n_samples:
+        raise ValueError("`peak_force_bins` counts Monte Carlo samples: it needs `n_samples` >= 2")
     if n_samples != 0:  # Monte Carlo needs two samples for a standard deviation
         try:
             check_count("n_samples", n_samples, minimum=2)
@@ -169,6 +175,10 @@ def run_study(
     sl = {c: solve_moments(system, criterion=c, save_every=sl_every, **kw) for c in criteria}
     mc = None
     if n_samples:
+        peaks, histogram_times = {}, ()
+        if peak_force_bins:
+            saved = dt * mc_every * np.arange(kw["n_steps"] // mc_every + 1)
+            peaks, histogram_times = peak_force_bins_of(sl[criteria[0]], peak_force_bins, saved)
         mc = monte_carlo(
             system,
             n_samples=n_samples,
@@ -179,6 +189,8 @@ def run_study(
             checkpoint=checkpoint,
             checkpoint_every=checkpoint_every,
             resume=resume,
+            peaks=peaks,
+            histogram_times=histogram_times,
             **kw,
         )
     settings = dict(
@@ -192,6 +204,114 @@ def run_study(
         sl_refine=mc_every // sl_every,
     )
     return PlanetaryStudy(p, sl, mc, dt, carrier_period(p), settings)
+
+
+#: the peak histograms' range, from 0 N to SL's largest |mean| + PEAK_FORCE_STDS std of each meshing force
+PEAK_FORCE_STDS = 8.0
+#: the peak histograms are reported at this many evenly spaced saved times, the last one included
+PEAK_FORCE_TIMES = 20
+
+
+def peak_force_bins_of(sl: MomentResult, bins: int, saved_times) -> tuple[dict, np.ndarray]:
+    """``(peaks, histogram_times)`` for :func:`pgtjax.monte_carlo`: ``bins`` bins per meshing force from 0 N
+    to SL's largest ``|mean| + PEAK_FORCE_STDS std`` over the run (``sl``), and ``PEAK_FORCE_TIMES`` of the
+    Monte Carlo's ``saved_times`` (s), evenly spaced, the last included. A sample whose peak goes beyond that
+    edge is not counted (:func:`peak_force_summary` reports how many were not)."""
+    upper = np.max(np.abs(np.asarray(sl.force_mean)) + PEAK_FORCE_STDS * np.asarray(sl.force_std), axis=0)
+    peaks = {
+        f"force:{name}": np.linspace(0.0, max(float(top), 1.0), bins + 1)
+        for name, top in zip(sl.contact_names, upper)
+    }
+    times = np.asarray(saved_times)
+    picks = np.unique(np.round(np.linspace(0, len(times) - 1, PEAK_FORCE_TIMES + 1)[1:]).astype(int))
+    return peaks, times[picks]
+
+
+def _exceedance(counts, n_samples: int) -> np.ndarray:
+    """P(peak >= each bin's upper edge) from one row of peak counts over bins from 0: a sample beyond the top
+    edge counts as beyond every level (a peak, a magnitude, is never below the first edge, 0)."""
+    return 1.0 - np.cumsum(np.asarray(counts)) / n_samples
+
+
+def peak_force_summary(study: PlanetaryStudy) -> dict | None:
+    """Per meshing force, quantiles of its peak (largest magnitude) over the run: the upper edge of the bin
+    where the Monte Carlo's cumulative count reaches the quantile (within one bin width above it), where at
+    least 10 samples lie beyond it; None without peak histograms."""
+    mc = study.mc
+    if mc is None or not mc.peak_histograms:
+        return None
+    levels = {"median": 0.5, "q90": 0.9, "q99": 0.99, "q999": 0.999}
+    per_mesh = {}
+    for quantity, counts in mc.peak_histograms.items():
+        edges = np.asarray(mc.peak_edges[quantity])
+        cumulative = np.cumsum(np.asarray(counts)[-1])
+        entry = {"bin_width_N": float(edges[1] - edges[0]), "top_edge_N": float(edges[-1])}
+        entry["beyond_top_edge_fraction"] = float(1.0 - cumulative[-1] / mc.n_samples)
+        for label, q in levels.items():
+            reached = np.nonzero(cumulative >= q * mc.n_samples)[0]
+            enough = mc.n_samples * (1.0 - q) >= 10
+            entry[f"{label}_N"] = float(edges[reached[0] + 1]) if enough and reached.size else None
+        per_mesh[quantity.split(":", 1)[1]] = entry
+    return dict(
+        note="peak (largest magnitude) of each meshing force of each sample over the saved times from t = 0 "
+        "to the end of the run; each quantile is the upper edge of the bin where the Monte Carlo's cumulative "
+        "count reaches it, so within one bin width above it (null where fewer than 10 samples lie beyond it, "
+        "or where it lies beyond the top edge)",
+        time_s=float(mc.histogram_times[-1]),
+        n_samples_count=mc.n_samples,
+        per_mesh=per_mesh,
+    )
+
+
+def _same_peaks(mc: MonteCarloResult, a: str, b: str) -> bool:
+    """Whether two meshes' peak curves coincide: bins equal to rounding and counts within 2 samples per bin
+    (the planets of a symmetric train, whose forces agree to rounding, which can move a sample at a bin edge)."""
+    return bool(
+        np.allclose(np.asarray(mc.peak_edges[a]), np.asarray(mc.peak_edges[b]), rtol=1e-9, atol=0.0)
+        and np.max(np.abs(np.asarray(mc.peak_histograms[a]) - np.asarray(mc.peak_histograms[b]))) <= 2
+    )
+
+
+def peak_force_figure(study: PlanetaryStudy):
+    """The probability that each meshing force's peak (its largest magnitude since t = 0) has reached a level,
+    by the end of the run (solid) and by mid-run (dashed), from the Monte Carlo's peak histograms; None
+    without them."""
+    mc = study.mc
+    if mc is None or not mc.peak_histograms:
+        return None
+    groups = {"sun-planet meshes": "force:sun", "ring-planet meshes": "force:ring"}
+    fig = plots.panel_grid_figure((11, 4.4))
+    axes = np.atleast_1d(fig.subplots(1, len(groups), sharey=True))
+    times = np.asarray(mc.histogram_times)
+    rows = {len(times) - 1: "-", (len(times) - 1) // 2: "--"}
+    for ax, (title, prefix) in zip(axes, groups.items()):
+        # meshes whose counts and bins are equal (the planets of a symmetric train) drawn once, named together
+        same: dict[str, list[str]] = {}
+        for quantity in (q for q in mc.peak_histograms if q.startswith(prefix)):
+            twin = next((q for q in same if _same_peaks(mc, q, quantity)), quantity)
+            same.setdefault(twin, []).append(quantity.split(":", 1)[1])
+        certain = []  # the highest level every sample's peak reached, for the axis's left end
+        for k, (quantity, names) in enumerate(same.items()):
+            levels = np.asarray(mc.peak_edges[quantity])[1:]
+            for row, style in rows.items():
+                p = _exceedance(np.asarray(mc.peak_histograms[quantity])[row], mc.n_samples)
+                keep = p > 0
+                label = (
+                    f"{', '.join(names)}{' (coincide)' if len(names) > 1 else ''}, by t = {times[row]:.3g} s"
+                )
+                ax.semilogy(levels[keep] / 1e3, p[keep], style, color=f"C{k}", label=label)
+                certain.append(np.concatenate([[0.0], levels[p >= 1.0]])[-1] / 1e3)
+        ax.set_xlim(left=max(0.9 * min(certain), 0.0))
+        ax.set_title(title)
+        ax.set_xlabel("meshing force level (kN)")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7)
+    axes[0].set_ylabel("probability that the peak has reached the level")
+    fig.suptitle(
+        f"Peak meshing forces (largest magnitude since t = 0 over the saved times): Monte Carlo, "
+        f"{mc.n_samples:,} samples (smallest probability shown {1 / mc.n_samples:.1g})"
+    )
+    return fig
 
 
 def parameter_sweep(
@@ -775,6 +895,8 @@ FILE_INDEX = {
     "ring-planet 1 meshing forces over the run, per mesh cycle, SL against MC",
     "planetary_mesh_forces_zoom.png": "the meshing forces over 5 mesh periods at mid-run: SL against every MC "
     "save, 95 % error bars",
+    "planetary_peak_forces.png": "with --peak-forces: the probability that each meshing force's peak (largest "
+    "magnitude since the start, over the saved times) has reached a level, by mid-run and by the end (MC)",
     "planetary_rim_thickness.png": "thesis Figs. 3.12-3.15: SL for each rim thickness (--rim-thicknesses)",
     "planetary_supports.png": "SL for each number of equally spaced bolts (--support-counts)",
 }
@@ -853,6 +975,9 @@ def summary(study: PlanetaryStudy, *, sweeps=None, modal=None, sens=None) -> dic
         )
     if sens is not None:
         out["sensitivities"] = _sensitivity_summary(sens)
+    peaks = peak_force_summary(study)
+    if peaks is not None:
+        out["peak_meshing_forces"] = peaks
     return out
 
 
@@ -881,6 +1006,7 @@ def write_outputs(
     ]
     if study.mc is not None:
         figures.append(("planetary_mesh_forces_zoom", lambda: mesh_force_zoom_figure(study)))
+        figures.append(("planetary_peak_forces", lambda: peak_force_figure(study)))
     for title, results in (sweeps or {}).items():
         slug = title.split(":")[0].lower().replace(" ", "_")
         build = functools.partial(sweep_figure, results, title, cycle=mesh_period(study))
