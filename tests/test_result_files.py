@@ -127,7 +127,9 @@ def test_netcdf_round_trip_and_labelled_dataset(tmp_path):
         )
         np.testing.assert_array_equal(ds["std_u"].sel(dof=mc.dof_names[0]).values, np.asarray(mc.std_u[:, 0]))
         assert ds["std_u"].dtype == np.float64
-        units = {v.attrs["long_name"]: v.attrs["units"] for v in ds.data_vars.values() if "long_name" in v.attrs}
+        units = {
+            v.attrs["long_name"]: v.attrs["units"] for v in ds.data_vars.values() if "long_name" in v.attrs
+        }
         assert units["peak_edges['delta:mesh']"].startswith("the quantity's")
         assert units["peak_histograms['delta:mesh']"] == "1 (count)"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["mc.nc", "sl.nc", "trajectory.nc"]
