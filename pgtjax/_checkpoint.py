@@ -245,11 +245,15 @@ def check_checkpoint(path, entries: dict, *, what: str) -> None:
     _refuse_differences(path, what, saved, {k: v for k, v in expected.items() if k in saved})
 
 
-def load_checkpoint(path, description: dict, *, what: str) -> dict[str, np.ndarray]:
+def load_checkpoint(
+    path, description: dict, *, what: str, absent: dict | None = None
+) -> dict[str, np.ndarray]:
     """The arrays of the checkpoint at ``path``; ``ValueError`` if it is missing, unreadable, not a pgtjax
-    checkpoint, or written by a run whose description differs (the differing entries are named)."""
+    checkpoint, or written by a run whose description differs (the differing entries are named). ``absent``:
+    entries added to the description since, with the value a checkpoint written before them stands for."""
     path = Path(path)
     arrays, saved = _read(path, what)
+    saved = {**_as_json(absent or {}, what), **saved}
     expected = _as_json(description, what)
     if set(saved) != set(expected):  # another description altogether: not worth listing value by value
         unknown = ", ".join(sorted(set(saved) - set(expected))) or "nothing"

@@ -573,7 +573,7 @@ def monte_carlo(
         histograms: ``{quantity: bin_edges}`` with quantity names from :func:`quantity_names`
             (e.g. ``"delta:mesh"``); all edge arrays (these and ``peaks``'s) must have the same length; values
             outside the edges are not counted.
-        histogram_times: times (s) at which the histograms are reported (nearest saved time).
+        histogram_times: times (s) at which the histograms and peaks are reported (nearest saved time).
         peaks: ``{quantity: bin_edges}``: each sample's largest magnitude ``|value|`` of the quantity over the
             saved times from ``t0`` to each histogram time, counted in those bins (the result's
             ``peak_histograms``: the distribution of the peak, e.g. of a meshing force's, whence the
@@ -671,6 +671,11 @@ def monte_carlo(
         histogram_times = _check_histogram_times(
             histogram_times, histograms or peaks, t0, dt * n_steps, dt * save_every
         )
+        if peaks and not histogram_times:
+            raise ValueError(
+                "`peaks` are reported at `histogram_times` (the peak from t0 to each): give at least one, "
+                f"e.g. the run's end, {float(t0) + float(dt) * n_steps:.6g} s"
+            )
         n_saved = n_steps // save_every + 1
         cov_size = len(covariance_index(system, covariance_dofs))
         per_save = (
@@ -700,6 +705,7 @@ def monte_carlo(
             quantities=names,
             histograms=list(histograms),
             covariance_columns=list(cov_columns),
+            peaks=list(peaks),
             propagation="physical" if eigen is None else "eigen",
             t0=float(t0),
             dt=float(dt),
@@ -711,10 +717,6 @@ def monte_carlo(
             processes=n_proc,
             process=proc,
         )
-        if (
-            peaks
-        ):  # an entry only where there are peaks, so that a checkpoint from before `peaks` still resumes
-            description["peaks"] = list(peaks)
         rows_per_input = _block_rows(system, eigen, integrator, key, t0, save_every, per_device, devices)
         if eigen is not None:  # the steps' inputs formed per saved block, or per part of a long one, since
             # 2026-11-28 (rounding differs): a checkpoint of an eigen run from before, or with parts of another
@@ -724,7 +726,8 @@ def monte_carlo(
                 "per block" if rows_per_input == save_every else f"per {rows_per_input} steps"
             )
         if resume:
-            saved = load_checkpoint(checkpoint, description, what="monte_carlo")
+            # `peaks` entered the description on 2026-11-28: a checkpoint from before had none
+            saved = load_checkpoint(checkpoint, description, what="monte_carlo", absent={"peaks": []})
             first_round = int(saved.pop("next_round"))
             moments = _Moments.from_arrays(saved)
     bar = _progress_bar(n_samples, progress and proc == 0)

@@ -46,8 +46,9 @@ FIELDS = (
 
 def run(key=None, **kw):
     """The gear pair with backlash (about 2 % of samples out of contact at the saved times); ``kw`` chooses
-    devices, processes, chunks and checkpoints."""
+    devices, processes, chunks and checkpoints (and may replace the peaks)."""
     system = gear_pair.build()
+    kw.setdefault("peaks", {"delta:mesh": np.linspace(2e-5, 8e-5, 17)})
     return pg.monte_carlo(
         system,
         n_samples=203,
@@ -57,7 +58,6 @@ def run(key=None, **kw):
         save_every=50,
         histograms={"delta:mesh": np.linspace(1.5e-5, 4.5e-5, 17)},
         histogram_times=[0.002],
-        peaks={"delta:mesh": np.linspace(2e-5, 8e-5, 17)},
         covariance_dofs="all",
         progress=False,
         **kw,

@@ -267,6 +267,7 @@ API = [
     ("histogram time NaN", lambda: mc(histograms=HIST, histogram_times=[np.nan]), "`histogram_times`"),
     ("histogram times without histograms", lambda: mc(histogram_times=[0.1]), "`histogram_times`"),
     ("peaks a list", lambda: mc(peaks=["u:x"]), "`peaks`"),
+    ("peaks without histogram times", lambda: mc(peaks={"u:x": [0.0, 1.0]}), "`histogram_times`"),
     ("peak quantity unknown", lambda: mc(peaks={"u:y": [0.0, 1.0]}), "'u:y' in `peaks`"),
     ("peak edges with a NaN", lambda: mc(peaks={"u:x": [0.0, np.nan]}), "`peaks` edges for 'u:x'"),
     (

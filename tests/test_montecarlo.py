@@ -901,11 +901,13 @@ def test_rows_drawn_at_once_fit_the_budget_and_prefer_a_divisor(monkeypatch):
     from pgtjax._loop import saved_scan
 
     monkeypatch.setattr(_montecarlo, "saved_scan", recording_scan)
+    jax.clear_caches()  # the patched loop is seen only while a program is traced, not by a cached one
     for system, n_noise in [(gp.build(), 1), (_chain_with_contacts()[0], 2)]:
         seen.clear()
         formed.clear()
         pg.monte_carlo(system, n_samples=40, key=jax.random.key(0), dt=1e-5, n_steps=20, save_every=20,
                        propagation="eigen", chunk_size=25, devices=jax.local_devices()[:1], progress=False)  # fmt: skip
+        assert formed, "the Monte Carlo program was not traced again (a cached compile?)"
         draws, inputs = formed[0]
         assert draws.shape[:2] == (1, 25) and inputs.shape[0] == 1 and inputs.shape[1] > 0
         nd = draws.shape[2]

@@ -527,7 +527,7 @@ def test_study_grids_outputs_and_symmetry_zero_dofs(tmp_path):
     # the peak meshing forces: every sample counted within the bins, quantiles in order, at or above each
     # sample's magnitude at the end (the peaks' median is at least the end's smallest |mean| - 3 std)
     peaks = full["peak_meshing_forces"]
-    assert set(peaks["per_mesh"]) == set(sl.contact_names) and peaks["n_samples_count"] == 200
+    assert set(peaks["per_mesh"]) == set(sl.contact_names) and peaks["n_samples"] == 200
     end = np.abs(np.asarray(mc.force_mean[-1])) - 3 * np.asarray(mc.force_std[-1])
     for k, name in enumerate(sl.contact_names):
         entry = peaks["per_mesh"][name]
@@ -727,3 +727,31 @@ def test_share_within_three_standard_errors_is_not_rounded_up_to_all():
 
     assert _percent(1.0) == "100.00 %" and _percent(0.9965) == "99.65 %"
     assert _percent(0.99996) == "> 99.99 %"  # 4 points in 100,000 outside: not "100.00 %"
+
+
+def test_peak_quantiles_and_exceedance_from_hand_made_counts():
+    """The peak summary's rule on counts made by hand: 100 samples over bins of 1 N from 0 to 10 N, 50 in
+    [3, 4), 40 in [5, 6), 9 in [8, 9) and 1 beyond the top edge. A quantile is the upper edge of the bin where
+    the cumulative count reaches it, stated only with at least 10 samples beyond it (the 90 % with exactly
+    10); the exceedance at each upper edge counts the sample beyond the top edge too."""
+    from types import SimpleNamespace
+
+    from pgtjax.studies import planetary as study
+
+    row = np.zeros(10)
+    row[[3, 5, 8]] = 50.0, 40.0, 9.0
+    counts = np.stack([np.zeros(10), row])  # two histogram times; the last one is summarized
+    mc = SimpleNamespace(
+        peak_histograms={"force:m": counts},
+        peak_edges={"force:m": np.arange(11.0)},
+        histogram_times=np.array([0.5, 1.0]),
+        n_samples=100,
+    )
+    summary = study.peak_force_summary(SimpleNamespace(mc=mc))
+    entry = summary["per_mesh"]["m"]
+    assert entry["median_N"] == 4.0 and entry["q90_N"] == 6.0
+    assert entry["q99_N"] is None and entry["q999_N"] is None
+    assert entry["beyond_top_edge_fraction"] == 0.01 and entry["bin_width_N"] == 1.0
+    assert summary["time_s"] == 1.0 and summary["n_samples"] == 100
+    p = study._exceedance(row, 100)  # P(peak >= 1, 2, ..., 10 N)
+    np.testing.assert_allclose(p, [1, 1, 1, 0.5, 0.5, 0.1, 0.1, 0.1, 0.01, 0.01], rtol=0, atol=1e-15)

@@ -329,6 +329,20 @@ def test_resume_refuses_another_run_and_bad_paths(tmp_path):
         ValueError, match="it records nothing that this version does not, and lacks step_inputs"
     ):
         run(chunk_size=100, checkpoint=tmp_path / "before_block_inputs.npz", resume=True)
+    # other peaks: named as the entry that differs
+    with pytest.raises(ValueError, match=r"peaks: checkpoint \['delta:mesh'\], this run \[\]"):
+        run(chunk_size=100, checkpoint=checkpoint, resume=True, peaks={})
+    # one written before `peaks` existed (no such entry) resumes a run without peaks, to the same statistics
+    plain = run(chunk_size=100, peaks={}, checkpoint=tmp_path / "plain.npz")
+    with np.load(tmp_path / "plain.npz") as data:
+        arrays = {k: data[k] for k in data.files}
+    meta = json.loads(str(arrays.pop("__checkpoint__")))
+    assert meta["peaks"] == []
+    del meta["peaks"], meta["format"], meta["run"]
+    save_checkpoint(tmp_path / "before_peaks.npz", arrays, meta, what="monte_carlo")
+    resumed = run(chunk_size=100, peaks={}, checkpoint=tmp_path / "before_peaks.npz", resume=True)
+    np.testing.assert_array_equal(np.asarray(resumed.std_u), np.asarray(plain.std_u))
+    assert resumed.peak_histograms == {} and float(np.max(np.asarray(plain.std_u))) > 0
     np.savez(tmp_path / "other.npz", x=np.zeros(3))
     with pytest.raises(ValueError, match="not a pgtjax checkpoint"):
         run(checkpoint=tmp_path / "other.npz", resume=True)

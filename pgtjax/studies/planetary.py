@@ -202,6 +202,7 @@ def run_study(
         mc_save_every=mc_every,
         sl_save_every=sl_every,
         sl_refine=mc_every // sl_every,
+        peak_force_bins=peak_force_bins,
     )
     return PlanetaryStudy(p, sl, mc, dt, carrier_period(p), settings)
 
@@ -230,7 +231,7 @@ def peak_force_bins_of(sl: MomentResult, bins: int, saved_times) -> tuple[dict, 
 def _exceedance(counts, n_samples: int) -> np.ndarray:
     """P(peak >= each bin's upper edge) from one row of peak counts over bins from 0: a sample beyond the top
     edge counts as beyond every level (a peak, a magnitude, is never below the first edge, 0)."""
-    return 1.0 - np.cumsum(np.asarray(counts)) / n_samples
+    return (n_samples - np.cumsum(np.asarray(counts))) / n_samples  # whole counts: exact ratios
 
 
 def peak_force_summary(study: PlanetaryStudy) -> dict | None:
@@ -240,16 +241,19 @@ def peak_force_summary(study: PlanetaryStudy) -> dict | None:
     mc = study.mc
     if mc is None or not mc.peak_histograms:
         return None
-    levels = {"median": 0.5, "q90": 0.9, "q99": 0.99, "q999": 0.999}
+    levels = {"median": 500, "q90": 900, "q99": 990, "q999": 999}  # per mille
     per_mesh = {}
     for quantity, counts in mc.peak_histograms.items():
         edges = np.asarray(mc.peak_edges[quantity])
         cumulative = np.cumsum(np.asarray(counts)[-1])
         entry = {"bin_width_N": float(edges[1] - edges[0]), "top_edge_N": float(edges[-1])}
-        entry["beyond_top_edge_fraction"] = float(1.0 - cumulative[-1] / mc.n_samples)
-        for label, q in levels.items():
-            reached = np.nonzero(cumulative >= q * mc.n_samples)[0]
-            enough = mc.n_samples * (1.0 - q) >= 10
+        entry["beyond_top_edge_fraction"] = float((mc.n_samples - cumulative[-1]) / mc.n_samples)
+        for label, per_mille in levels.items():
+            # whole numbers of samples (at most n_samples, so doubles hold them exactly): the sample count the
+            # quantile needs below it, and the 10 beyond it that make it worth stating
+            needed = -(-per_mille * mc.n_samples // 1000)
+            reached = np.nonzero(cumulative >= needed)[0]
+            enough = mc.n_samples - needed >= 10
             entry[f"{label}_N"] = float(edges[reached[0] + 1]) if enough and reached.size else None
         per_mesh[quantity.split(":", 1)[1]] = entry
     return dict(
@@ -258,17 +262,18 @@ def peak_force_summary(study: PlanetaryStudy) -> dict | None:
         "count reaches it, so within one bin width above it (null where fewer than 10 samples lie beyond it, "
         "or where it lies beyond the top edge)",
         time_s=float(mc.histogram_times[-1]),
-        n_samples_count=mc.n_samples,
+        n_samples=mc.n_samples,
         per_mesh=per_mesh,
+        units=dict(n_samples="1 (count)"),
     )
 
 
 def _same_peaks(mc: MonteCarloResult, a: str, b: str) -> bool:
-    """Whether two meshes' peak curves coincide: bins equal to rounding and counts within 2 samples per bin
-    (the planets of a symmetric train, whose forces agree to rounding, which can move a sample at a bin edge)."""
+    """Whether two meshes' peak curves are the same: bins equal to rounding (the planets of a symmetric train,
+    whose SL forces, and so the bins, agree to rounding) and the same counts in every bin."""
     return bool(
         np.allclose(np.asarray(mc.peak_edges[a]), np.asarray(mc.peak_edges[b]), rtol=1e-9, atol=0.0)
-        and np.max(np.abs(np.asarray(mc.peak_histograms[a]) - np.asarray(mc.peak_histograms[b]))) <= 2
+        and np.array_equal(np.asarray(mc.peak_histograms[a]), np.asarray(mc.peak_histograms[b]))
     )
 
 
@@ -296,9 +301,7 @@ def peak_force_figure(study: PlanetaryStudy):
             for row, style in rows.items():
                 p = _exceedance(np.asarray(mc.peak_histograms[quantity])[row], mc.n_samples)
                 keep = p > 0
-                label = (
-                    f"{', '.join(names)}{' (coincide)' if len(names) > 1 else ''}, by t = {times[row]:.3g} s"
-                )
+                label = f"{', '.join(names)}{' (the same counts)' if len(names) > 1 else ''}, by t = {times[row]:.3g} s"
                 ax.semilogy(levels[keep] / 1e3, p[keep], style, color=f"C{k}", label=label)
                 certain.append(np.concatenate([[0.0], levels[p >= 1.0]])[-1] / 1e3)
         ax.set_xlim(left=max(0.9 * min(certain), 0.0))
@@ -868,6 +871,7 @@ SETTING_UNITS = dict(
     mc_save_every="time steps",
     sl_save_every="time steps",
     sl_refine="1 (SL saves per MC save)",
+    peak_force_bins="1 (count of bins per meshing force's peak histogram; 0: none)",
 )
 MODES_NOTE = (
     "natural frequencies of the model linearized with every mesh closed at t = 0; the lowest, of type "
