@@ -224,6 +224,14 @@ def _sample_statistics(
             return q
 
     nc = clearance.shape[0]
+    # the peaks of contact forces follow every step (the step's state carries its forces); others the saves
+    step_peaks = [(j, c - 2 * n - nc) for j, c in enumerate(peak_columns) if 2 * n + nc <= c < 2 * n + 2 * nc]
+
+    def peak_of_step(peak, state):  # (batch, n_peaks), with each contact force's |value| after this step
+        if not step_peaks:
+            return peak
+        columns, contacts = (np.asarray(a) for a in zip(*step_peaks))
+        return peak.at[:, columns].max(jnp.abs(state.force[:, contacts]))
 
     def count(edges, values):  # weighted counts of values (batch,) in the bins of edges; outside: not counted
         idx = jnp.clip(jnp.searchsorted(edges, values, side="right") - 1, 0, edges.shape[0] - 2)
@@ -232,7 +240,7 @@ def _sample_statistics(
 
     def statistics(state, snap, t, peak):
         """The saved time's sums, and ``peak`` (batch, n_peaks), each sample's largest magnitude of each of
-        the ``peaks`` quantities over the saved times so far (None at the first), updated with this one."""
+        the ``peaks`` quantities so far (None at the first), updated with this saved time's."""
         q = recorded(state, snap, t)
         delta = q[:, 2 * n : 2 * n + nc]
         mean = weights @ q / total
@@ -267,7 +275,7 @@ def _sample_statistics(
             state, snap0, bad, peak = c
             snap1 = snapshot(system, t0 + dt * step_number)
             state, ok = step(state, snap0, snap1, step_draws)
-            return (state, snap1, bad + jnp.sum(weights * (~ok)), peak), None
+            return (state, snap1, bad + jnp.sum(weights * (~ok)), peak_of_step(peak, state)), None
 
         block_inputs = block_draws
     else:  # what a step needs besides the state, formed for the block's steps at once, outside the step loop
@@ -292,7 +300,7 @@ def _sample_statistics(
             # batch's loops, they made those loops 2.6 times slower (docs/performance.md)
             inputs = unflatten(materialized(inputs))
             state, ok = eigen_advance(system, eigen, state, inputs, step_draws)
-            return (state, snap, bad + jnp.sum(weights * (~ok)), peak), None
+            return (state, snap, bad + jnp.sum(weights * (~ok)), peak_of_step(peak, state)), None
 
     def record(c, _, block_index):
         state, snap, bad, peak = c
@@ -574,10 +582,11 @@ def monte_carlo(
             (e.g. ``"delta:mesh"``); all edge arrays (these and ``peaks``'s) must have the same length; values
             outside the edges are not counted.
         histogram_times: times (s) at which the histograms and peaks are reported (nearest saved time).
-        peaks: ``{quantity: bin_edges}``: each sample's largest magnitude ``|value|`` of the quantity over the
-            saved times from ``t0`` to each histogram time, counted in those bins (the result's
-            ``peak_histograms``: the distribution of the peak, e.g. of a meshing force's, whence the
-            probability that it has reached a level by then).
+        peaks: ``{quantity: bin_edges}``: each sample's largest magnitude ``|value|`` of the quantity from
+            ``t0`` to each histogram time, counted in those bins (the result's ``peak_histograms``: the
+            distribution of the peak, e.g. of a meshing force's, whence the probability that it has reached a
+            level by then). A contact force's peak is taken over every step, any other quantity's over the
+            saved times.
         progress: show a progress bar over chunks.
         propagation: coordinates the samples are stepped in. ``"eigen"``: the real eigenbasis of the
             contact-free Newmark map (:mod:`pgtjax._eigenbasis`; constant K and C only), O(n (nc + n_draws))

@@ -207,7 +207,8 @@ class MonteCarloResult(_Labelled, _Covariance):
     ``mean_*``/``std_*`` as in :class:`MomentResult` (``std`` with the 1/(N-1) normalisation, thesis
     Eq. 4.66); ``histograms`` maps a quantity name to counts of shape ``(len(histogram_times), n_bins)`` over
     ``histogram_edges[name]``; ``peak_histograms`` likewise counts, over ``peak_edges[name]``, each sample's
-    largest magnitude of the quantity over the saved times from ``t0`` to each histogram time (the
+    largest magnitude of the quantity from ``t0`` to each histogram time (a contact force's over every step,
+    another quantity's over the saved times; the
     distribution of its peak, whence the probability of reaching a level by then; a peak between saved
     times is not seen); ``unconverged`` counts (sample, step) pairs whose contact Newton solve did not
     reach its tolerance; ``propagation`` says whether the samples were stepped in physical or eigen-coordinates

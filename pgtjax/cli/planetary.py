@@ -90,8 +90,8 @@ def _add_planetary_options(p: argparse.ArgumentParser, quick: bool) -> None:
         type=nonneg_int,
         default=0,
         metavar="BINS",
-        help="Monte Carlo also counts every meshing force's peak (its largest magnitude over the saved times "
-        "since the start; --saves sets how finely) in BINS bins from 0 N to SL's largest |mean| + 8 std: "
+        help="Monte Carlo also counts every meshing force's peak (its largest magnitude over every step "
+        "since the start) in BINS bins from 0 N to SL's largest |mean| + 8 std: "
         "planetary_peak_forces.png draws the probability that the peak has reached each level, and "
         "peak_meshing_forces in summary.json gives its quantiles (default 0: off)",
     )

@@ -257,7 +257,7 @@ def peak_force_summary(study: PlanetaryStudy) -> dict | None:
             entry[f"{label}_N"] = float(edges[reached[0] + 1]) if enough and reached.size else None
         per_mesh[quantity.split(":", 1)[1]] = entry
     return dict(
-        note="peak (largest magnitude) of each meshing force of each sample over the saved times from t = 0 "
+        note="peak (largest magnitude) of each meshing force of each sample over every step from t = 0 "
         "to the end of the run; each quantile is the upper edge of the bin where the Monte Carlo's cumulative "
         "count reaches it, so within one bin width above it (null where fewer than 10 samples lie beyond it, "
         "or where it lies beyond the top edge)",
@@ -311,7 +311,7 @@ def peak_force_figure(study: PlanetaryStudy):
         ax.legend(fontsize=7)
     axes[0].set_ylabel("probability that the peak has reached the level")
     fig.suptitle(
-        f"Peak meshing forces (largest magnitude since t = 0 over the saved times): Monte Carlo, "
+        f"Peak meshing forces (largest magnitude over every step since t = 0): Monte Carlo, "
         f"{mc.n_samples:,} samples (smallest probability shown {1 / mc.n_samples:.1g})"
     )
     return fig
@@ -900,7 +900,7 @@ FILE_INDEX = {
     "planetary_mesh_forces_zoom.png": "the meshing forces over 5 mesh periods at mid-run: SL against every MC "
     "save, 95 % error bars",
     "planetary_peak_forces.png": "with --peak-forces: the probability that each meshing force's peak (largest "
-    "magnitude since the start, over the saved times) has reached a level, by mid-run and by the end (MC)",
+    "magnitude over every step since the start) has reached a level, by mid-run and by the end (MC)",
     "planetary_rim_thickness.png": "thesis Figs. 3.12-3.15: SL for each rim thickness (--rim-thicknesses)",
     "planetary_supports.png": "SL for each number of equally spaced bolts (--support-counts)",
 }
