@@ -196,6 +196,21 @@ def eigen_recorded(prop: EigenPropagator, state: EigenSampleState, snap: Snapsho
     )
     # z = y - force Q(t)^T, and the force columns are the forces themselves
     force_rows = (-_contact_input(prop, snap) @ rows).at[:, 2 * n + nc : 2 * n + 2 * nc].add(jnp.eye(nc))
+    return eigen_outputs(prop, state, rows, force_rows)
+
+
+def eigen_output_rows(prop: EigenPropagator, snap: Snapshot, u_map, v_map):
+    """Rows of linear outputs ``u A + v B`` (``u_map`` A and ``v_map`` B, (n, k)) at the time of ``snap``
+    in eigen-coordinates, for :func:`eigen_outputs`: (2n, k) for ``y`` and (nc, k) for the forces
+    (``z = y - force Q(t)^T``)."""
+    n = prop.basis.shape[0] // 2
+    rows = prop.basis[:n].T @ u_map + (2.0 / prop.h) * (prop.basis[n:].T @ v_map)
+    return rows, -_contact_input(prop, snap) @ rows
+
+
+def eigen_outputs(prop: EigenPropagator, state: EigenSampleState, rows, force_rows):
+    """``y rows + force force_rows`` (batch, k): outputs of a batch's state, the rows as from
+    :func:`eigen_output_rows` (or :func:`eigen_recorded`'s)."""
     m = prop.n_pairs
     return _parts_times(
         (state.re, state.im, state.real, state.force), (rows[:m], rows[m : 2 * m], rows[2 * m :], force_rows)

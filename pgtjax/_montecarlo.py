@@ -37,6 +37,8 @@ from ._checkpoint import (
 from ._eigenbasis import (
     eigen_advance,
     eigen_initial_state,
+    eigen_output_rows,
+    eigen_outputs,
     eigen_propagator,
     eigen_recorded,
     eigen_step_inputs,
@@ -163,6 +165,54 @@ def quantity_names(system: System, observables: Observables | None = None) -> li
     return names
 
 
+def _is_force_column(system: System, column: int) -> bool:
+    """Whether column ``column`` of :func:`quantity_names` is a contact force (the others are linear in the
+    state: displacements, velocities, contact deflections, observables)."""
+    n, nc = system.n_dof, system.n_contacts
+    return 2 * n + nc <= column < 2 * n + 2 * nc
+
+
+def _output_maps(system: System, snap, observables, t, columns):
+    """``(A_u, A_v, offset)`` of the recorded quantities ``columns`` (of :func:`quantity_names`, no contact
+    force) at time ``t`` (s; ``snap`` its snapshot): quantity j is ``u A_u[:, j] + v A_v[:, j] + offset[j]``,
+    A_u and A_v (n, k), offset (k,)."""
+    n, nc = system.n_dof, system.n_contacts
+    eye, zero = jnp.eye(n), jnp.zeros(n)
+    if observables is not None:
+        observation, shift = observables(t).T, observables.shift(t)  # (n, n_obs), (n_obs,)
+    a_u, a_v, offset = [], [], []
+    for c in columns:
+        u_col, v_col, off = zero, zero, jnp.zeros(())
+        if c < n:
+            u_col = eye[:, c]
+        elif c < 2 * n:
+            v_col = eye[:, c - n]
+        elif c < 2 * n + nc:
+            u_col = snap.direction[:, c - 2 * n]
+        else:
+            u_col, off = observation[:, c - 2 * n - 2 * nc], shift[c - 2 * n - 2 * nc]
+        a_u, a_v, offset = a_u + [u_col], a_v + [v_col], offset + [off]
+    return jnp.stack(a_u, axis=1), jnp.stack(a_v, axis=1), jnp.stack(offset)
+
+
+def _eigen_flat_inputs(system, eigen, integrator, observables, output_columns):
+    """``(s0, s1, t1) -> flat array``: what a step in eigen-coordinates needs besides the state (its
+    :class:`pgtjax._eigenbasis.EigenStepInputs`), and the rows of the ``output_columns`` peaks at its end
+    (time ``t1``), raveled into one array; and the function that unravels it."""
+
+    def inputs(s0, s1, t1):
+        rows = ()
+        if output_columns:
+            a_u, a_v, offset = _output_maps(system, s1, observables, t1, output_columns)
+            rows = (*eigen_output_rows(eigen, s1, a_u, a_v), offset)
+        return eigen_step_inputs(system, eigen, s0, s1, integrator), rows
+
+    def flat(s0, s1, t1):
+        return ravel_pytree(inputs(s0, s1, t1))[0]
+
+    return flat, inputs
+
+
 def _sample_statistics(
     system,
     key,
@@ -224,14 +274,21 @@ def _sample_statistics(
             return q
 
     nc = clearance.shape[0]
-    # the peaks of contact forces follow every step (the step's state carries its forces); others the saves
-    step_peaks = [(j, c - 2 * n - nc) for j, c in enumerate(peak_columns) if 2 * n + nc <= c < 2 * n + 2 * nc]
+    # every peak follows every step: a contact force's from the forces the step's state carries, any other
+    # quantity's (linear in the state) from its rows at the step's end
+    force_peaks = [(j, c - 2 * n - nc) for j, c in enumerate(peak_columns) if _is_force_column(system, c)]
+    output_peaks = [(j, c) for j, c in enumerate(peak_columns) if not _is_force_column(system, c)]
+    output_columns = [c for _, c in output_peaks]
 
-    def peak_of_step(peak, state):  # (batch, n_peaks), with each contact force's |value| after this step
-        if not step_peaks:
-            return peak
-        columns, contacts = (np.asarray(a) for a in zip(*step_peaks))
-        return peak.at[:, columns].max(jnp.abs(state.force[:, contacts]))
+    def peak_of_step(peak, state, outputs):
+        """``peak`` (batch, n_peaks) after a step: with each contact force's |value| and the |value| of the
+        other quantities, ``outputs`` (batch, len(output_peaks)), at its end."""
+        if force_peaks:
+            columns, contacts = (np.asarray(a) for a in zip(*force_peaks))
+            peak = peak.at[:, columns].max(jnp.abs(state.force[:, contacts]))
+        if output_peaks:
+            peak = peak.at[:, np.asarray([j for j, _ in output_peaks])].max(jnp.abs(outputs))
+        return peak
 
     def count(edges, values):  # weighted counts of values (batch,) in the bins of edges; outside: not counted
         idx = jnp.clip(jnp.searchsorted(edges, values, side="right") - 1, 0, edges.shape[0] - 2)
@@ -273,23 +330,29 @@ def _sample_statistics(
 
         def advance(c, step_number, step_draws):
             state, snap0, bad, peak = c
-            snap1 = snapshot(system, t0 + dt * step_number)
+            t1 = t0 + dt * step_number
+            snap1 = snapshot(system, t1)
             state, ok = step(state, snap0, snap1, step_draws)
-            return (state, snap1, bad + jnp.sum(weights * (~ok)), peak_of_step(peak, state)), None
+            outputs = None
+            if output_peaks:
+                a_u, a_v, offset = _output_maps(system, snap1, observables, t1, output_columns)
+                outputs = state.u @ a_u + state.v @ a_v + offset[None, :]
+            return (state, snap1, bad + jnp.sum(weights * (~ok)), peak_of_step(peak, state, outputs)), None
 
         block_inputs = block_draws
     else:  # what a step needs besides the state, formed for the block's steps at once, outside the step loop
-
-        def flat_inputs(s0, s1):
-            return ravel_pytree(eigen_step_inputs(system, eigen, s0, s1, integrator))[0]
-
-        _, unflatten = ravel_pytree(eigen_step_inputs(system, eigen, s0, s0, integrator))
+        flat_inputs, structured_inputs = _eigen_flat_inputs(
+            system, eigen, integrator, observables, output_columns
+        )
+        _, unflatten = ravel_pytree(structured_inputs(s0, s0, t0))
 
         def block_inputs(block_index, first_row, rows):
             steps = block_index * save_every + first_row + jnp.arange(rows + 1)
             snaps = jax.vmap(lambda k: snapshot(system, t0 + dt * k))(steps)
             inputs = jax.vmap(flat_inputs)(
-                jax.tree.map(lambda a: a[:-1], snaps), jax.tree.map(lambda a: a[1:], snaps)
+                jax.tree.map(lambda a: a[:-1], snaps),
+                jax.tree.map(lambda a: a[1:], snaps),
+                t0 + dt * steps[1:],
             )
             return block_draws(block_index, first_row, rows), inputs  # (rows, batch, nd), (rows, n_inputs)
 
@@ -298,9 +361,13 @@ def _sample_statistics(
             step_draws, inputs = x
             # the step's inputs in one small array of their own: read through the scan's slice inside the
             # batch's loops, they made those loops 2.6 times slower (docs/performance.md)
-            inputs = unflatten(materialized(inputs))
+            inputs, output_rows = unflatten(materialized(inputs))
             state, ok = eigen_advance(system, eigen, state, inputs, step_draws)
-            return (state, snap, bad + jnp.sum(weights * (~ok)), peak_of_step(peak, state)), None
+            outputs = None
+            if output_peaks:
+                rows, force_rows, offset = output_rows
+                outputs = eigen_outputs(eigen, state, rows, force_rows) + offset[None, :]
+            return (state, snap, bad + jnp.sum(weights * (~ok)), peak_of_step(peak, state, outputs)), None
 
     def record(c, _, block_index):
         state, snap, bad, peak = c
@@ -339,17 +406,29 @@ def _rows_per_input(save_every: int, bytes_per_row: int, budget: int, partial_dr
     return divisor if 2 * divisor >= rows else rows
 
 
-def _block_rows(system, eigen, integrator, key, t0, save_every: int, per_device: int, devices) -> int:
+def _block_rows(
+    system,
+    eigen,
+    integrator,
+    key,
+    t0,
+    save_every: int,
+    per_device: int,
+    devices,
+    observables=None,
+    output_columns=(),
+) -> int:
     """:func:`_rows_per_input` for a device's batch of ``per_device`` samples, within
     :func:`pgtjax._parallel.draw_budget`: per step, the batch's uniforms and normals (and their transpose for
     several noise inputs, pgtjax._random.block_normals) and the flat step inputs of eigen-coordinates."""
     nd = integrator.noise_dimension(system)
     n_inputs = 0
     if eigen is not None:  # the flat step inputs of pgtjax._eigenbasis, formed for every step of a part
+        flat, _ = _eigen_flat_inputs(system, eigen, integrator, observables, output_columns)
 
         def flat_inputs():  # traced for its size only: run op by op, the snapshot took 1.9 s the first time
             s0 = snapshot(system, t0)
-            return ravel_pytree(eigen_step_inputs(system, eigen, s0, s0, integrator))[0]
+            return flat(s0, s0, jnp.asarray(t0, jnp.float64))
 
         n_inputs = jax.eval_shape(flat_inputs).size
     copies = 2 if nd == 1 else 3
@@ -585,8 +664,9 @@ def monte_carlo(
         peaks: ``{quantity: bin_edges}``: each sample's largest magnitude ``|value|`` of the quantity from
             ``t0`` to each histogram time, counted in those bins (the result's ``peak_histograms``: the
             distribution of the peak, e.g. of a meshing force's, whence the probability that it has reached a
-            level by then). A contact force's peak is taken over every step, any other quantity's over the
-            saved times.
+            level by then). Every peak is taken over every step, not only the saved times: a contact force's
+            from the forces each step carries, any other quantity's from the state at each step's end (for
+            those, a small product per step; docs/performance.md, "Peaks of a quantity").
         progress: show a progress bar over chunks.
         propagation: coordinates the samples are stepped in. ``"eigen"``: the real eigenbasis of the
             contact-free Newmark map (:mod:`pgtjax._eigenbasis`; constant K and C only), O(n (nc + n_draws))
@@ -726,7 +806,10 @@ def monte_carlo(
             processes=n_proc,
             process=proc,
         )
-        rows_per_input = _block_rows(system, eigen, integrator, key, t0, save_every, per_device, devices)
+        output_columns = [c for c in peak_columns if not _is_force_column(system, c)]
+        rows_per_input = _block_rows(
+            system, eigen, integrator, key, t0, save_every, per_device, devices, observables, output_columns
+        )
         if eigen is not None:  # the steps' inputs formed per saved block, or per part of a long one, since
             # 2026-11-28 (rounding differs): a checkpoint of an eigen run from before, or with parts of another
             # length (they follow from the devices' draw budget, pgtjax._parallel.draw_budget), is refused rather
@@ -734,9 +817,13 @@ def monte_carlo(
             description["step_inputs"] = (
                 "per block" if rows_per_input == save_every else f"per {rows_per_input} steps"
             )
+        # every quantity's peak follows every step since 2026-11-28 (before, only contact forces' did, and the
+        # others' followed the saves): a checkpoint from before with such peaks is refused, not resumed
+        description["peak_updates"] = "every step"
         if resume:
             # `peaks` entered the description on 2026-11-28: a checkpoint from before had none
-            saved = load_checkpoint(checkpoint, description, what="monte_carlo", absent={"peaks": []})
+            absent = {"peaks": [], "peak_updates": "saves" if output_columns else "every step"}
+            saved = load_checkpoint(checkpoint, description, what="monte_carlo", absent=absent)
             first_round = int(saved.pop("next_round"))
             moments = _Moments.from_arrays(saved)
     bar = _progress_bar(n_samples, progress and proc == 0)

@@ -902,17 +902,28 @@ def test_rows_drawn_at_once_fit_the_budget_and_prefer_a_divisor(monkeypatch):
 
     monkeypatch.setattr(_montecarlo, "saved_scan", recording_scan)
     jax.clear_caches()  # the patched loop is seen only while a program is traced, not by a cached one
-    for system, n_noise in [(gp.build(), 1), (_chain_with_contacts()[0], 2)]:
+    # with peaks of quantities other than contact forces, a step's inputs also hold their rows
+    peaks = dict(peaks={q: [0.0, 1.0] for q in ("u:z", "delta:mesh", "force:mesh")}, histogram_times=[2e-4])
+    sizes = []
+    for system, n_noise, options in [
+        (gp.build(), 1, {}),
+        (gp.build(), 1, peaks),
+        (_chain_with_contacts()[0], 2, {}),
+    ]:
         seen.clear()
         formed.clear()
         pg.monte_carlo(system, n_samples=40, key=jax.random.key(0), dt=1e-5, n_steps=20, save_every=20,
-                       propagation="eigen", chunk_size=25, devices=jax.local_devices()[:1], progress=False)  # fmt: skip
+                       propagation="eigen", chunk_size=25, devices=jax.local_devices()[:1], progress=False,
+                       **options)  # fmt: skip
         assert formed, "the Monte Carlo program was not traced again (a cached compile?)"
         draws, inputs = formed[0]
         assert draws.shape[:2] == (1, 25) and inputs.shape[0] == 1 and inputs.shape[1] > 0
         nd = draws.shape[2]
         assert nd == n_noise
         assert seen == [(20, 8 * ((2 if nd == 1 else 3) * 25 * nd + inputs.shape[1]), 12345, True)]
+        sizes.append(inputs.shape[1])
+    # two peaks' rows: (2n + nc) each for the eigen-coordinates and the force, and an offset (n = 3, nc = 1)
+    assert sizes[1] - sizes[0] == 2 * (2 * 3 + 1 + 1)
 
 
 def test_wide_vectors_only_on_cpus_with_avx512_unless_xla_flags_choose_a_width(monkeypatch):
@@ -938,46 +949,57 @@ def _cumulative(counts):
 
 
 @pytest.mark.parametrize("propagation", ["eigen", "physical"])
-def test_peaks_of_a_noise_free_run_count_the_largest_force_that_simulate_gives(propagation):
+def test_peaks_of_a_noise_free_run_count_the_largest_values_that_simulate_gives(propagation):
     """Without noise every sample follows the deterministic response, which :func:`pgtjax.simulate` computes
-    with its own time loop: at each saved time all samples lie in the bin of that response's largest meshing
-    force magnitude over every step so far (a contact force's peak follows every step), and of its largest
-    displacement magnitude over the saved times so far (another quantity's follows the saves)."""
+    with its own time loop: at each saved time all samples lie in the bin of that response's largest
+    magnitude over every step so far, for a meshing force, a displacement, a velocity, the mesh deflection
+    and an observable with an offset (every quantity's peak follows every step, not only the saves)."""
     import equinox as eqx
 
     from pgtjax.models import gear_pair as gp
 
     system = gp.build()
     quiet = eqx.tree_at(lambda s: s.spectral_density, system, jnp.zeros_like(system.spectral_density))
+    # an observable: z - y1 / 2 plus 3e-6 m, so that its magnitude is not a DOF's
+    obs = pg.Observables(np.array([[-0.5, 0.0, 1.0]]), names=["zy"], offset=np.array([3e-6]))
     every_step = pg.simulate(quiet, dt=1e-5, n_steps=400)
-    force = np.asarray(every_step.force[:, 0])  # (401,): t0 and every step
-    z = np.abs(np.asarray(every_step.u[::10, 2]))  # at the 41 saved times
-    f_edges = np.linspace(-0.013 * force.max(), 1.05 * force.max(), 61)  # force 0 (contact lost) inside a bin
-    z_edges = np.linspace(-0.013 * z.max(), 1.05 * z.max(), 61)  # z = 0 at t0 inside a bin
+    u, v = np.asarray(every_step.u), np.asarray(every_step.v)  # (401, 3): t0 and every step
+    values = {
+        "force:mesh": np.asarray(every_step.force[:, 0]),
+        "u:z": u[:, 2],
+        "v:y1": v[:, 0],
+        "delta:mesh": np.asarray(every_step.delta[:, 0]),
+        "obs:zy": u[:, 2] - 0.5 * u[:, 0] + 3e-6,
+    }
     saved_times = np.arange(41) * 1e-4
+    edges, cases = {}, []
+    for name, value in values.items():
+        magnitude = np.abs(value)
+        top = magnitude.max()
+        edges[name] = np.linspace(-0.013 * top, 1.05 * top, 61)  # 0 (contact lost, the start) inside a bin
+        step_peak = np.maximum.accumulate(magnitude)[::10]
+        saves_only = np.maximum.accumulate(magnitude[::10])
+        # meaningful: the peak between saves exceeds the peak over the saves in several bins
+        moved = np.searchsorted(edges[name], step_peak) != np.searchsorted(edges[name], saves_only)
+        assert np.sum(moved) > 2, name
+        cases.append((name, step_peak))
     mc = pg.monte_carlo(quiet, n_samples=7, key=KEY, progress=False, dt=1e-5, n_steps=400, save_every=10,
-                        histograms={"force:mesh": f_edges}, peaks={"force:mesh": f_edges, "u:z": z_edges},
+                        histograms={"force:mesh": edges["force:mesh"]}, peaks=edges, observables=obs,
                         histogram_times=saved_times, propagation=propagation)  # fmt: skip
     np.testing.assert_allclose(np.asarray(mc.histogram_times), saved_times, rtol=0, atol=1e-12)
-    np.testing.assert_array_equal(np.asarray(mc.peak_edges["u:z"]), z_edges)
-    assert force.min() >= 0.0  # so that the largest magnitude is the largest value
-    step_peak = np.maximum.accumulate(force)[::10]
-    cases = [
-        (mc.histograms["force:mesh"], force[::10], f_edges),
-        (mc.peak_histograms["force:mesh"], step_peak, f_edges),
-        (mc.peak_histograms["u:z"], np.maximum.accumulate(z), z_edges),
+    np.testing.assert_array_equal(np.asarray(mc.peak_edges["u:z"]), edges["u:z"])
+    cases = [(f"values of {n}", mc.histograms[n], values[n][::10]) for n in ["force:mesh"]] + [
+        (f"peaks of {n}", mc.peak_histograms[n], step_peak) for n, step_peak in cases
     ]
-    for counts, values, edges in cases:
+    for label, counts, expected_values in cases:
+        e = edges[label.split()[-1]]
         # the test's bins are decisive: no value within 1e-9 of an edge
-        assert np.min(np.abs(values[:, None] - edges[None, :])) > 1e-9 * np.max(np.abs(edges))
+        assert np.min(np.abs(expected_values[:, None] - e[None, :])) > 1e-9 * np.max(np.abs(e)), label
         got = np.asarray(counts)
         assert got.dtype == np.float64 and got.shape == (41, 60)
         expected = np.zeros_like(got)
-        expected[np.arange(41), np.searchsorted(edges, values, side="right") - 1] = 7.0
-        np.testing.assert_array_equal(got, expected)
-    # meaningful: the force's peak between saves exceeds its peak over the saves in many bins
-    saves_only = np.searchsorted(f_edges, np.maximum.accumulate(force[::10]), side="right")
-    assert np.sum(np.searchsorted(f_edges, step_peak, side="right") != saves_only) > 5
+        expected[np.arange(41), np.searchsorted(e, expected_values, side="right") - 1] = 7.0
+        np.testing.assert_array_equal(got, expected, err_msg=label)
 
 
 def test_peaks_lie_above_every_earlier_magnitude_and_grow_with_time():

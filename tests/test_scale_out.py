@@ -337,12 +337,21 @@ def test_resume_refuses_another_run_and_bad_paths(tmp_path):
     with np.load(tmp_path / "plain.npz") as data:
         arrays = {k: data[k] for k in data.files}
     meta = json.loads(str(arrays.pop("__checkpoint__")))
-    assert meta["peaks"] == []
-    del meta["peaks"], meta["format"], meta["run"]
+    assert meta["peaks"] == [] and meta["peak_updates"] == "every step"
+    del meta["peaks"], meta["peak_updates"], meta["format"], meta["run"]
     save_checkpoint(tmp_path / "before_peaks.npz", arrays, meta, what="monte_carlo")
     resumed = run(chunk_size=100, peaks={}, checkpoint=tmp_path / "before_peaks.npz", resume=True)
     np.testing.assert_array_equal(np.asarray(resumed.std_u), np.asarray(plain.std_u))
     assert resumed.peak_histograms == {} and float(np.max(np.asarray(plain.std_u))) > 0
+    # one with a deflection's peak, written while only contact forces' peaks followed every step (and the
+    # others' the saves; no `peak_updates` entry), is refused rather than resumed with other peaks
+    with np.load(checkpoint) as data:
+        arrays = {k: data[k] for k in data.files}
+    meta = json.loads(str(arrays.pop("__checkpoint__")))
+    del meta["peak_updates"], meta["format"], meta["run"]
+    save_checkpoint(tmp_path / "saved_peaks.npz", arrays, meta, what="monte_carlo")
+    with pytest.raises(ValueError, match="peak_updates: checkpoint 'saves', this run 'every step'"):
+        run(chunk_size=100, checkpoint=tmp_path / "saved_peaks.npz", resume=True)
     np.savez(tmp_path / "other.npz", x=np.zeros(3))
     with pytest.raises(ValueError, match="not a pgtjax checkpoint"):
         run(checkpoint=tmp_path / "other.npz", resume=True)
