@@ -1002,6 +1002,43 @@ def test_peaks_of_a_noise_free_run_count_the_largest_values_that_simulate_gives(
         np.testing.assert_array_equal(got, expected, err_msg=label)
 
 
+@pytest.mark.parametrize("propagation", ["eigen", "physical"])
+def test_asking_for_peaks_leaves_every_other_statistic_the_same(propagation):
+    """The peaks are computed beside the step, not within it: a run with peaks of a force, a displacement and
+    a deflection gives the same doubles for every other statistic as one without."""
+    from pgtjax.models import gear_pair as gp
+
+    system = gp.build()
+    common = dict(n_samples=64, key=KEY, dt=1e-5, n_steps=120, save_every=20, progress=False,
+                  propagation=propagation, histograms={"delta:mesh": np.linspace(-1e-4, 1e-4, 9)},
+                  histogram_times=[6e-4, 1.2e-3])  # fmt: skip
+    plain = pg.monte_carlo(system, **common)
+    edges = np.linspace(0.0, 1e-4, 9)
+    peaks = pg.monte_carlo(
+        system, **common, peaks={"force:mesh": edges * 1e10, "u:z": edges, "delta:mesh": edges}
+    )
+    for field in (
+        "mean_u",
+        "std_u",
+        "mean_v",
+        "std_v",
+        "force_mean",
+        "force_std",
+        "contact_loss_probability",
+    ):
+        np.testing.assert_array_equal(
+            np.asarray(getattr(peaks, field)), np.asarray(getattr(plain, field)), field
+        )
+    np.testing.assert_array_equal(
+        np.asarray(peaks.histograms["delta:mesh"]), np.asarray(plain.histograms["delta:mesh"])
+    )
+    assert float(np.max(np.asarray(plain.std_u))) > 0 and set(peaks.peak_histograms) == {
+        "force:mesh",
+        "u:z",
+        "delta:mesh",
+    }
+
+
 def test_peaks_lie_above_every_earlier_magnitude_and_grow_with_time():
     """With noise: each sample's peak is at least its magnitude at every saved time so far, so the peaks'
     cumulative counts lie below the magnitudes' at every earlier time and fall with time; at t0 they are the

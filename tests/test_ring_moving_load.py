@@ -88,6 +88,45 @@ def test_validation_errors():
         rml.support_case(_small(), 4)
 
 
+@pytest.mark.parametrize("propagation", ["eigen", "physical"])
+def test_peaks_of_a_moving_contact_point_follow_every_step_at_its_time(propagation):
+    """The contact-point output C(t) u moves with the load. Without noise every sample follows the response
+    that :func:`pgtjax.simulate` computes with its own loop; the output's value at each step, interpolated
+    independently (:func:`pgtjax.models.ring.ring_displacement_at` at the load's angle then), gives the peak
+    over every step, and every sample lies in its bin at each reported time. A row taken at another time
+    than the step's end, or only at the saves, would give other bins."""
+    from pgtjax.models.ring import ring_displacement_at
+
+    p = _small(carrier_speed=30.0)
+    quiet = rml.build(p)
+    quiet = eqx.tree_at(lambda x: x.spectral_density, quiet, jnp.zeros_like(quiet.spectral_density))
+    outputs = rml.observables(p)
+    u0, v0 = rml.static_initial_state(quiet)
+    dt, n_steps = 2e-4, 60
+    run = pg.simulate(quiet, dt=dt, n_steps=n_steps, initial_displacement=u0, initial_velocity=v0)
+    u = np.asarray(run.u)
+    point = np.array(
+        [
+            float(ring_displacement_at(p.ring, rml.contact_angle(p, k * dt), u[k])[0])
+            for k in range(n_steps + 1)
+        ]
+    )
+    name = f"obs:{rml.OBSERVER_NAME}"
+    magnitude = np.abs(point)
+    edges = np.linspace(0.98 * magnitude.min(), 1.02 * magnitude.max(), 301)
+    times = [dt * k for k in (20, 40, 60)]
+    mc = pg.monte_carlo(quiet, n_samples=5, key=jax.random.key(5), progress=False, dt=dt, n_steps=n_steps,
+                        save_every=20, observables=outputs, initial_displacement=u0, initial_velocity=v0,
+                        peaks={name: edges}, histogram_times=times, propagation=propagation)  # fmt: skip
+    step_peak = np.maximum.accumulate(magnitude)[20::20]
+    saves_only = np.maximum.accumulate(magnitude[::20])[1:]
+    assert np.any(np.searchsorted(edges, step_peak) != np.searchsorted(edges, saves_only))  # meaningful
+    assert np.min(np.abs(step_peak[:, None] - edges[None, :])) > 1e-9 * edges[-1]  # decisive bins
+    expected = np.zeros((3, 300))
+    expected[np.arange(3), np.searchsorted(edges, step_peak, side="right") - 1] = 5.0
+    np.testing.assert_array_equal(np.asarray(mc.peak_histograms[name]), expected)
+
+
 def test_monte_carlo_matches_recursion_dtypes_and_observables():
     p = _small(carrier_speed=30.0)
     s = rml.build(p)
