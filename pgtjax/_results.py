@@ -165,6 +165,16 @@ class TimeAverage(NamedTuple):
     n_times: int  # saved times averaged (the window's, trimmed to whole batches)
 
 
+class PeakExceedance(NamedTuple):
+    """The probability that a quantity's peak (its largest magnitude since ``t0``) has reached each level by
+    each histogram time, from Monte Carlo's peak counts (:meth:`MonteCarloResult.peak_exceedance`)."""
+
+    levels: np.ndarray  # (n_bins,) the bins' upper edges, in the quantity's unit
+    probability: np.ndarray  # (n_hist, n_bins) P(peak >= level) by each of histogram_times
+    standard_error: np.ndarray  # (n_hist, n_bins) sqrt(p (1 - p) / n_samples), the binomial one
+    times: np.ndarray  # (n_hist,) the histogram times (s)
+
+
 def every_nth_save(result: MomentResult, n: int) -> MomentResult:
     """``result`` at every ``n``-th saved time (first included). The per-block solver diagnostics
     (``iterations``, ``residual``, ``converged``) are reduced over the ``n`` blocks merged into each, so that
@@ -238,6 +248,25 @@ class MonteCarloResult(_Labelled, _Covariance):
     # empty in files written before peak histograms existed (2026-11-28)
     peak_edges: dict = eqx.field(default_factory=dict)
     peak_histograms: dict = eqx.field(default_factory=dict)
+
+    def peak_exceedance(self, quantity: str) -> PeakExceedance:
+        """:class:`PeakExceedance` of one of the ``peaks`` the run counted: P(peak >= each bin's upper edge)
+        by each histogram time, ``1 - cumsum(counts) / n_samples``. A sample whose peak lies beyond the top
+        edge counts as beyond every level. The edges must start at 0 or below, so that no peak (a magnitude)
+        lies below the first edge, where it could not be told from one beyond the top."""
+        if quantity not in self.peak_histograms:
+            known = ", ".join(self.peak_histograms) or "none: pass `peaks` to monte_carlo"
+            raise ValueError(f"no peaks of {quantity!r} were counted; counted: {known}")
+        edges = np.asarray(self.peak_edges[quantity])
+        if edges[0] > 0:
+            raise ValueError(
+                f"the peak edges of {quantity!r} start at {edges[0]:g} > 0: peaks below it were not counted and "
+                "cannot be told from those beyond the top edge; count with edges from 0"
+            )
+        counts = np.asarray(self.peak_histograms[quantity])
+        probability = (self.n_samples - np.cumsum(counts, axis=1)) / self.n_samples  # whole counts: exact
+        error = np.sqrt(probability * (1.0 - probability) / self.n_samples)
+        return PeakExceedance(edges[1:], probability, error, np.asarray(self.histogram_times))
 
     def standard_error(self, what: str = "u"):
         """Standard errors (mean, std) of ``mean_<what>`` and ``std_<what>`` (``what`` = u, v, delta, obs)

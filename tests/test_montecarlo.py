@@ -983,6 +983,7 @@ def test_peaks_of_a_noise_free_run_count_the_largest_values_that_simulate_gives(
         moved = np.searchsorted(edges[name], step_peak) != np.searchsorted(edges[name], saves_only)
         assert np.sum(moved) > 2, name
         cases.append((name, step_peak))
+    peak_values = dict(cases)
     mc = pg.monte_carlo(quiet, n_samples=7, key=KEY, progress=False, dt=1e-5, n_steps=400, save_every=10,
                         histograms={"force:mesh": edges["force:mesh"]}, peaks=edges, observables=obs,
                         histogram_times=saved_times, propagation=propagation)  # fmt: skip
@@ -1000,6 +1001,15 @@ def test_peaks_of_a_noise_free_run_count_the_largest_values_that_simulate_gives(
         expected = np.zeros_like(got)
         expected[np.arange(41), np.searchsorted(e, expected_values, side="right") - 1] = 7.0
         np.testing.assert_array_equal(got, expected, err_msg=label)
+    # the probability that the peak has reached each level: 1 up to the deterministic peak, 0 beyond
+    for name, step_peak in peak_values.items():
+        exceedance = mc.peak_exceedance(name)
+        assert exceedance.probability.dtype == np.float64 and exceedance.probability.shape == (41, 60)
+        np.testing.assert_array_equal(exceedance.levels, edges[name][1:])
+        np.testing.assert_array_equal(exceedance.times, np.asarray(mc.histogram_times))
+        reached = (step_peak[:, None] >= exceedance.levels[None, :]).astype(float)
+        np.testing.assert_array_equal(exceedance.probability, reached, err_msg=name)
+        np.testing.assert_array_equal(exceedance.standard_error, np.zeros_like(reached))
 
 
 @pytest.mark.parametrize("propagation", ["eigen", "physical"])
@@ -1063,3 +1073,18 @@ def test_peaks_lie_above_every_earlier_magnitude_and_grow_with_time():
     assert np.any(
         peaks < np.minimum.accumulate(values, axis=0)
     )  # the peaks are not the magnitudes themselves
+    # P(peak >= level) from the counts, with its binomial standard error
+    exceedance = mc.peak_exceedance("force:mesh")
+    counts = np.asarray(mc.peak_histograms["force:mesh"])
+    for row in (0, 15, 30):
+        beyond = np.array([n - counts[row, : j + 1].sum() for j in range(counts.shape[1])])
+        np.testing.assert_array_equal(exceedance.probability[row], beyond / n)
+    p = exceedance.probability
+    np.testing.assert_allclose(exceedance.standard_error, np.sqrt(p * (1 - p) / n), rtol=1e-15)
+    assert np.any((p[-1] > 0) & (p[-1] < 1))  # levels some samples' peaks reached, not all
+    with pytest.raises(ValueError, match="no peaks of 'u:z' were counted; counted: force:mesh"):
+        mc.peak_exceedance("u:z")
+    above = pg.monte_carlo(system, n_samples=4, key=KEY, dt=1e-5, n_steps=10, save_every=10, progress=False,
+                           peaks={"force:mesh": peak_edges + 1e5}, histogram_times=[1e-4])  # fmt: skip
+    with pytest.raises(ValueError, match="start at 100000 > 0"):
+        above.peak_exceedance("force:mesh")

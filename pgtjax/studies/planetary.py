@@ -228,12 +228,6 @@ def peak_force_bins_of(sl: MomentResult, bins: int, saved_times) -> tuple[dict, 
     return peaks, times[picks]
 
 
-def _exceedance(counts, n_samples: int) -> np.ndarray:
-    """P(peak >= each bin's upper edge) from one row of peak counts over bins from 0: a sample beyond the top
-    edge counts as beyond every level (a peak, a magnitude, is never below the first edge, 0)."""
-    return (n_samples - np.cumsum(np.asarray(counts))) / n_samples  # whole counts: exact ratios
-
-
 def peak_force_summary(study: PlanetaryStudy) -> dict | None:
     """Per meshing force, quantiles of its peak (largest magnitude) over the run: the upper edge of the bin
     where the Monte Carlo's cumulative count reaches the quantile (within one bin width above it), where at
@@ -297,9 +291,10 @@ def peak_force_figure(study: PlanetaryStudy):
             same.setdefault(twin, []).append(quantity.split(":", 1)[1])
         certain = []  # the highest level every sample's peak reached, for the axis's left end
         for k, (quantity, names) in enumerate(same.items()):
-            levels = np.asarray(mc.peak_edges[quantity])[1:]
+            exceedance = mc.peak_exceedance(quantity)
+            levels = exceedance.levels
             for row, style in rows.items():
-                p = _exceedance(np.asarray(mc.peak_histograms[quantity])[row], mc.n_samples)
+                p = exceedance.probability[row]
                 keep = p > 0
                 label = f"{', '.join(names)}{' (the same counts)' if len(names) > 1 else ''}, by t = {times[row]:.3g} s"
                 ax.semilogy(levels[keep] / 1e3, p[keep], style, color=f"C{k}", label=label)
