@@ -142,6 +142,36 @@ def _check_histogram_times(histogram_times, histograms, t0, duration, save_inter
     return values
 
 
+def _peak_start_step(peak_start, peaks, histogram_times, t0, dt, n_steps: int, save_every: int) -> int:
+    """The step (its end's index; 0: ``t0``) from which the peaks are taken: the one nearest ``peak_start``
+    (s; None: ``t0``). ``ValueError`` unless it lies within the run, there are peaks, and every histogram time
+    (at its nearest saved time) is at or after it: before it no peak has been taken."""
+    if peak_start is None:
+        return 0
+    if not peaks:
+        raise ValueError("`peak_start` was given without `peaks` (quantity -> bin edges) to count")
+    try:
+        start = float(peak_start)
+    except (TypeError, ValueError):
+        raise ValueError(f"`peak_start` must be a time (s), got {peak_start!r}") from None
+    t0, dt = float(t0), float(dt)
+    end = t0 + dt * n_steps
+    if not (np.isfinite(start) and t0 - 0.5 * dt <= start <= end + 0.5 * dt):
+        raise ValueError(
+            f"`peak_start` must lie within the run, [{t0:.6g}, {end:.6g}] s (the nearest step is taken), got "
+            f"{peak_start!r}"
+        )
+    step = min(max(int(round((start - t0) / dt)), 0), n_steps)
+    saved_steps = save_every * np.arange(n_steps // save_every + 1)
+    early = [t for t in histogram_times if saved_steps[np.argmin(np.abs(t0 + dt * saved_steps - t))] < step]
+    if early:
+        raise ValueError(
+            f"`histogram_times` {early} (each at its nearest saved time) come before `peak_start` "
+            f"({t0 + dt * step:.6g} s, at the nearest step): no peak has been taken by then"
+        )
+    return step
+
+
 def _symmetric_square_root(p0: np.ndarray) -> np.ndarray:
     """``F = V sqrt(L) V^T`` (2n, 2n) with ``F F^T = p0``, or (2n, 0) for ``p0 = 0``: the factor each sample's
     initial state is drawn with (``x0 = mean + F z``). Unlike ``V sqrt(L)`` it does not depend on LAPACK's
@@ -195,6 +225,12 @@ def _output_maps(system: System, snap, observables, t, columns):
     return jnp.stack(a_u, axis=1), jnp.stack(a_v, axis=1), jnp.stack(offset)
 
 
+def _later_peak(peak, magnitude, counted):
+    """``max(peak, magnitude)`` where ``counted`` (a scalar: the time is at or after the peaks' start), else
+    ``peak``: one elementwise select with the maximum."""
+    return jnp.where(counted, jnp.maximum(peak, magnitude), peak)
+
+
 def _eigen_flat_inputs(system, eigen, integrator, observables, output_columns):
     """``(s0, s1, t1) -> flat array``: what a step in eigen-coordinates needs besides the state (its
     :class:`pgtjax._eigenbasis.EigenStepInputs`), and the rows of the ``output_columns`` peaks at its end
@@ -223,6 +259,7 @@ def _sample_statistics(
     init_factor,
     t0,
     dt,
+    peak_from,
     hist_edges,
     observables,
     eigen,
@@ -280,9 +317,10 @@ def _sample_statistics(
     output_peaks = [(j, c) for j, c in enumerate(peak_columns) if not _is_force_column(system, c)]
     output_columns = [c for _, c in output_peaks]
 
-    def peak_of_step(peak, state, outputs):
-        """``peak`` (batch, n_peaks) after a step: with each contact force's |value| and the |value| of the
-        other quantities, ``outputs`` (batch, len(output_peaks)), at its end."""
+    def peak_of_step(peak, state, outputs, step_number):
+        """``peak`` (batch, n_peaks) after step ``step_number`` (its end's index): with each contact force's
+        |value| and the |value| of the other quantities, ``outputs`` (batch, len(output_peaks)), at its end,
+        from step ``peak_from`` on (before, the peaks stay -inf: not yet counted)."""
         if not peak_columns:
             return peak
         # this step's magnitudes in the peaks' order, then one elementwise maximum (a scatter per kind of
@@ -292,23 +330,26 @@ def _sample_statistics(
             state.force[:, force_at[j], None] if j in force_at else outputs[:, output_at[j], None]
             for j in range(len(peak_columns))
         ]
-        return jnp.maximum(peak, jnp.abs(jnp.concatenate(current, axis=1)))
+        return _later_peak(peak, jnp.abs(jnp.concatenate(current, axis=1)), step_number >= peak_from)
 
     def count(edges, values):  # weighted counts of values (batch,) in the bins of edges; outside: not counted
         idx = jnp.clip(jnp.searchsorted(edges, values, side="right") - 1, 0, edges.shape[0] - 2)
         inside = (values >= edges[0]) & (values <= edges[-1])
         return jnp.zeros(edges.shape[0] - 1).at[idx].add(weights * inside)
 
-    def statistics(state, snap, t, peak):
+    def statistics(state, snap, t, peak, step_number):
         """The saved time's sums, and ``peak`` (batch, n_peaks), each sample's largest magnitude of each of
-        the ``peaks`` quantities so far (None at the first), updated with this saved time's."""
+        the ``peaks`` quantities so far (None at the first), updated with this saved time's (the end of step
+        ``step_number``)."""
         q = recorded(state, snap, t)
         delta = q[:, 2 * n : 2 * n + nc]
         mean = weights @ q / total
         m2 = weights @ (q - mean[None, :]) ** 2
         loss = weights @ (jnp.abs(delta) < clearance[None, :]).astype(q.dtype)
         magnitude = jnp.abs(q[:, list(peak_columns)])
-        peak = magnitude if peak is None else jnp.maximum(peak, magnitude)
+        if peak is None:
+            peak = jnp.full_like(magnitude, -jnp.inf)
+        peak = _later_peak(peak, magnitude, step_number >= peak_from)
         # the values' counts, then the peaks': (n_hist + n_peaks, n_bins)
         n_hist = len(hist_columns)
         counts = [count(hist_edges[j], q[:, c]) for j, c in enumerate(hist_columns)]
@@ -341,7 +382,8 @@ def _sample_statistics(
             if output_peaks:
                 a_u, a_v, offset = _output_maps(system, snap1, observables, t1, output_columns)
                 outputs = state.u @ a_u + state.v @ a_v + offset[None, :]
-            return (state, snap1, bad + jnp.sum(weights * (~ok)), peak_of_step(peak, state, outputs)), None
+            peak = peak_of_step(peak, state, outputs, step_number)
+            return (state, snap1, bad + jnp.sum(weights * (~ok)), peak), None
 
         block_inputs = block_draws
     else:  # what a step needs besides the state, formed for the block's steps at once, outside the step loop
@@ -371,17 +413,18 @@ def _sample_statistics(
             if output_peaks:  # a product of their own, so that the step itself is the same with peaks or not
                 rows, force_rows, offset = output_rows
                 outputs = eigen_outputs(eigen, state, rows, force_rows) + offset[None, :]
-            return (state, snap, bad + jnp.sum(weights * (~ok)), peak_of_step(peak, state, outputs)), None
+            peak = peak_of_step(peak, state, outputs, step_number)
+            return (state, snap, bad + jnp.sum(weights * (~ok)), peak), None
 
     def record(c, _, block_index):
         state, snap, bad, peak = c
         t = t0 + dt * (block_index + 1) * save_every
         if eigen is not None:  # not carried through the steps
             snap = snapshot(system, t0 + dt * ((block_index + 1) * save_every))
-        saved, peak = statistics(state, snap, t, peak)
+        saved, peak = statistics(state, snap, t, peak, (block_index + 1) * save_every)
         return (state, c[1], bad, peak), saved
 
-    first, peak = statistics(state, s0, t0, None)
+    first, peak = statistics(state, s0, t0, None, 0)
     carry = (state, s0, jnp.array(0.0), peak)
     carry, saved = saved_scan(
         advance,
@@ -638,6 +681,7 @@ def monte_carlo(
     histograms: Mapping[str, Sequence[float]] | None = None,
     histogram_times: Sequence[float] = (),
     peaks: Mapping[str, Sequence[float]] | None = None,
+    peak_start: float | None = None,
     progress: bool = True,
     propagation: str = "auto",
     throw: bool = True,
@@ -666,11 +710,13 @@ def monte_carlo(
             outside the edges are not counted.
         histogram_times: times (s) at which the histograms and peaks are reported (nearest saved time).
         peaks: ``{quantity: bin_edges}``: each sample's largest magnitude ``|value|`` of the quantity from
-            ``t0`` to each histogram time, counted in those bins (the result's ``peak_histograms``: the
+            ``t0`` (or ``peak_start``) to each histogram time, counted in those bins (the result's ``peak_histograms``: the
             distribution of the peak, e.g. of a meshing force's, whence the probability that it has reached a
             level by then). Every peak is taken over every step, not only the saved times: a contact force's
             from the forces each step carries, any other quantity's from the state at each step's end (for
             those, a small product per step; docs/performance.md, "Peaks of a quantity").
+        peak_start: time (s) from which the peaks are taken (the nearest step; default ``t0``), e.g. after a
+            start-up transient; every histogram time must be at or after it.
         progress: show a progress bar over chunks.
         propagation: coordinates the samples are stepped in. ``"eigen"``: the real eigenbasis of the
             contact-free Newmark map (:mod:`pgtjax._eigenbasis`; constant K and C only), O(n (nc + n_draws))
@@ -769,6 +815,7 @@ def monte_carlo(
                 "`peaks` are reported at `histogram_times` (the peak from t0 to each): give at least one, "
                 f"e.g. the run's end, {float(t0) + float(dt) * n_steps:.6g} s"
             )
+        peak_from = _peak_start_step(peak_start, peaks, histogram_times, t0, dt, n_steps, save_every)
         n_saved = n_steps // save_every + 1
         cov_size = len(covariance_index(system, covariance_dofs))
         per_save = (
@@ -824,9 +871,15 @@ def monte_carlo(
         # every quantity's peak follows every step since 2026-11-28 (before, only contact forces' did, and the
         # others' followed the saves): a checkpoint from before with such peaks is refused, not resumed
         description["peak_updates"] = "every step"
+        description["peak_start_step"] = peak_from
         if resume:
-            # `peaks` entered the description on 2026-11-28: a checkpoint from before had none
-            absent = {"peaks": [], "peak_updates": "saves" if output_columns else "every step"}
+            # `peaks` entered the description on 2026-11-28, and their start later that day: a checkpoint from
+            # before had no peaks, or peaks from t0
+            absent = {
+                "peaks": [],
+                "peak_updates": "saves" if output_columns else "every step",
+                "peak_start_step": 0,
+            }
             saved = load_checkpoint(checkpoint, description, what="monte_carlo", absent=absent)
             first_round = int(saved.pop("next_round"))
             moments = _Moments.from_arrays(saved)
@@ -855,6 +908,7 @@ def monte_carlo(
                 init_factor,
                 jnp.asarray(t0, jnp.float64),
                 jnp.asarray(dt, jnp.float64),
+                jnp.asarray(peak_from, jnp.int32),
                 hist_edges,
                 observables,
                 eigen,
@@ -918,6 +972,7 @@ def monte_carlo(
         histogram_edges={name: jnp.asarray(e) for name, e in zip(histograms, edges)},
         histograms={name: jnp.asarray(counts[hist_idx, j]) for j, name in enumerate(histograms)},
         peak_edges={name: jnp.asarray(e) for name, e in zip(peaks, edges[len(histograms) :])},
+        peak_start=float(t0) + float(dt) * peak_from if peaks else None,
         peak_histograms={
             name: jnp.asarray(counts[hist_idx, len(histograms) + j]) for j, name in enumerate(peaks)
         },

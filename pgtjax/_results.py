@@ -173,6 +173,7 @@ class PeakExceedance(NamedTuple):
     probability: np.ndarray  # (n_hist, n_bins) P(peak >= level) by each of histogram_times
     standard_error: np.ndarray  # (n_hist, n_bins) sqrt(p (1 - p) / n_samples), the binomial one
     times: np.ndarray  # (n_hist,) the histogram times (s)
+    start: float  # the time (s) the peaks are taken from
 
 
 def every_nth_save(result: MomentResult, n: int) -> MomentResult:
@@ -248,12 +249,14 @@ class MonteCarloResult(_Labelled, _Covariance):
     # empty in files written before peak histograms existed (2026-11-28)
     peak_edges: dict = eqx.field(default_factory=dict)
     peak_histograms: dict = eqx.field(default_factory=dict)
+    peak_start: float | None = eqx.field(static=True, default=None)  # s; the peaks' start (None: t0 or none)
 
     def peak_exceedance(self, quantity: str) -> PeakExceedance:
         """:class:`PeakExceedance` of one of the ``peaks`` the run counted: P(peak >= each bin's upper edge)
-        by each histogram time, ``1 - cumsum(counts) / n_samples``. A sample whose peak lies beyond the top
-        edge counts as beyond every level. The edges must start at 0 or below, so that no peak (a magnitude)
-        lies below the first edge, where it could not be told from one beyond the top."""
+        by each histogram time, the peak taken from ``peak_start``: ``1 - cumsum(counts) / n_samples``. A
+        sample whose peak lies beyond the top edge counts as beyond every level. The edges must start at 0 or
+        below, so that no peak (a magnitude) lies below the first edge, where it could not be told from one
+        beyond the top."""
         if quantity not in self.peak_histograms:
             known = ", ".join(self.peak_histograms) or "none: pass `peaks` to monte_carlo"
             raise ValueError(f"no peaks of {quantity!r} were counted; counted: {known}")
@@ -266,7 +269,8 @@ class MonteCarloResult(_Labelled, _Covariance):
         counts = np.asarray(self.peak_histograms[quantity])
         probability = (self.n_samples - np.cumsum(counts, axis=1)) / self.n_samples  # whole counts: exact
         error = np.sqrt(probability * (1.0 - probability) / self.n_samples)
-        return PeakExceedance(edges[1:], probability, error, np.asarray(self.histogram_times))
+        start = float(self.times[0]) if self.peak_start is None else self.peak_start
+        return PeakExceedance(edges[1:], probability, error, np.asarray(self.histogram_times), start)
 
     def standard_error(self, what: str = "u"):
         """Standard errors (mean, std) of ``mean_<what>`` and ``std_<what>`` (``what`` = u, v, delta, obs)

@@ -275,6 +275,27 @@ API = [
         lambda: mc(histograms=HIST, peaks={"u:x": [0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0]}),
         "`histograms` and `peaks`",
     ),
+    ("peak start without peaks", lambda: mc(peak_start=0.1), "`peak_start` was given without `peaks`"),
+    (
+        "peak start beyond the end",
+        lambda: mc(peaks={"u:x": [0.0, 1.0]}, histogram_times=[0.1], peak_start=99.0),
+        "`peak_start` must lie within the run",
+    ),
+    (
+        "peak start NaN",
+        lambda: mc(peaks={"u:x": [0.0, 1.0]}, histogram_times=[0.1], peak_start=np.nan),
+        "`peak_start` must lie within",
+    ),
+    (
+        "peak start a word",
+        lambda: mc(peaks={"u:x": [0.0, 1.0]}, histogram_times=[0.1], peak_start="later"),
+        "`peak_start` must be a time",
+    ),
+    (
+        "peaks reported before their start",
+        lambda: mc(peaks={"u:x": [0.0, 1.0]}, histogram_times=[0.0, 0.12], peak_start=0.1),
+        r"`histogram_times` \[0.0\] .* come before `peak_start`",
+    ),
     ("checkpoint_every zero", lambda: mc(checkpoint_every=0), "`checkpoint_every`"),
     # modal analysis, static solve
     ("modal K = -I", lambda: pg.modal_analysis(chain(stiffness=-np.eye(2))), "negative eigenvalue"),

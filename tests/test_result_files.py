@@ -108,7 +108,8 @@ def test_netcdf_round_trip_and_labelled_dataset(tmp_path):
 
     from pgtjax.models import gear_pair
 
-    mc = run(key=jax.random.key(3))
+    mc = run(key=jax.random.key(3), peak_start=5e-4)  # a static field: the peaks' start (s)
+    assert mc.peak_start == pytest.approx(5e-4, abs=1e-15)
     system = gear_pair.build()
     trajectory = pg.simulate(system, dt=1e-5, n_steps=30, save_every=10)
     for name, result in [("mc", mc), ("sl", small_result()), ("trajectory", trajectory)]:

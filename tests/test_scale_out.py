@@ -329,6 +329,9 @@ def test_resume_refuses_another_run_and_bad_paths(tmp_path):
         ValueError, match="it records nothing that this version does not, and lacks step_inputs"
     ):
         run(chunk_size=100, checkpoint=tmp_path / "before_block_inputs.npz", resume=True)
+    # peaks from another start: named as the entry that differs
+    with pytest.raises(ValueError, match=r"peak_start_step: checkpoint 0, this run 100"):
+        run(chunk_size=100, checkpoint=checkpoint, resume=True, peak_start=1e-3)
     # other peaks: named as the entry that differs
     with pytest.raises(ValueError, match=r"peaks: checkpoint \['delta:mesh'\], this run \[\]"):
         run(chunk_size=100, checkpoint=checkpoint, resume=True, peaks={})
