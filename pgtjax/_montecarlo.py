@@ -143,9 +143,9 @@ def _check_histogram_times(histogram_times, histograms, t0, duration, save_inter
 
 
 def _peak_start_step(peak_start, peaks, histogram_times, t0, dt, n_steps: int, save_every: int) -> int:
-    """The step (its end's index; 0: ``t0``) from which the peaks are taken: the one nearest ``peak_start``
-    (s; None: ``t0``). ``ValueError`` unless it lies within the run, there are peaks, and every histogram time
-    (at its nearest saved time) is at or after it: before it no peak has been taken."""
+    """The step (its end's index; 0: ``t0``) from which the peaks are taken: the saved step nearest
+    ``peak_start`` (s; None: ``t0``). ``ValueError`` unless it lies within the run, there are peaks, and every
+    histogram time (at its nearest saved time) is at or after it: before it no peak has been taken."""
     if peak_start is None:
         return 0
     if not peaks:
@@ -156,18 +156,19 @@ def _peak_start_step(peak_start, peaks, histogram_times, t0, dt, n_steps: int, s
         raise ValueError(f"`peak_start` must be a time (s), got {peak_start!r}") from None
     t0, dt = float(t0), float(dt)
     end = t0 + dt * n_steps
-    if not (np.isfinite(start) and t0 - 0.5 * dt <= start <= end + 0.5 * dt):
+    slack = 0.5 * dt * save_every
+    if not (np.isfinite(start) and t0 - slack <= start <= end + slack):
         raise ValueError(
-            f"`peak_start` must lie within the run, [{t0:.6g}, {end:.6g}] s (the nearest step is taken), got "
-            f"{peak_start!r}"
+            f"`peak_start` must lie within the run, [{t0:.6g}, {end:.6g}] s (the nearest saved time is taken), "
+            f"got {peak_start!r}"
         )
-    step = min(max(int(round((start - t0) / dt)), 0), n_steps)
     saved_steps = save_every * np.arange(n_steps // save_every + 1)
+    step = int(saved_steps[np.argmin(np.abs(t0 + dt * saved_steps - start))])
     early = [t for t in histogram_times if saved_steps[np.argmin(np.abs(t0 + dt * saved_steps - t))] < step]
     if early:
         raise ValueError(
             f"`histogram_times` {early} (each at its nearest saved time) come before `peak_start` "
-            f"({t0 + dt * step:.6g} s, at the nearest step): no peak has been taken by then"
+            f"({t0 + dt * step:.6g} s, at the nearest saved time): no peak has been taken by then"
         )
     return step
 
@@ -223,12 +224,6 @@ def _output_maps(system: System, snap, observables, t, columns):
             u_col, off = observation[:, c - 2 * n - 2 * nc], shift[c - 2 * n - 2 * nc]
         a_u, a_v, offset = a_u + [u_col], a_v + [v_col], offset + [off]
     return jnp.stack(a_u, axis=1), jnp.stack(a_v, axis=1), jnp.stack(offset)
-
-
-def _later_peak(peak, magnitude, counted):
-    """``max(peak, magnitude)`` where ``counted`` (a scalar: the time is at or after the peaks' start), else
-    ``peak``: one elementwise select with the maximum."""
-    return jnp.where(counted, jnp.maximum(peak, magnitude), peak)
 
 
 def _eigen_flat_inputs(system, eigen, integrator, observables, output_columns):
@@ -317,10 +312,9 @@ def _sample_statistics(
     output_peaks = [(j, c) for j, c in enumerate(peak_columns) if not _is_force_column(system, c)]
     output_columns = [c for _, c in output_peaks]
 
-    def peak_of_step(peak, state, outputs, step_number):
-        """``peak`` (batch, n_peaks) after step ``step_number`` (its end's index): with each contact force's
-        |value| and the |value| of the other quantities, ``outputs`` (batch, len(output_peaks)), at its end,
-        from step ``peak_from`` on (before, the peaks stay -inf: not yet counted)."""
+    def peak_of_step(peak, state, outputs):
+        """``peak`` (batch, n_peaks) after a step: with each contact force's |value| and the |value| of the
+        other quantities, ``outputs`` (batch, len(output_peaks)), at its end."""
         if not peak_columns:
             return peak
         # this step's magnitudes in the peaks' order, then one elementwise maximum (a scatter per kind of
@@ -330,7 +324,7 @@ def _sample_statistics(
             state.force[:, force_at[j], None] if j in force_at else outputs[:, output_at[j], None]
             for j in range(len(peak_columns))
         ]
-        return _later_peak(peak, jnp.abs(jnp.concatenate(current, axis=1)), step_number >= peak_from)
+        return jnp.maximum(peak, jnp.abs(jnp.concatenate(current, axis=1)))
 
     def count(edges, values):  # weighted counts of values (batch,) in the bins of edges; outside: not counted
         idx = jnp.clip(jnp.searchsorted(edges, values, side="right") - 1, 0, edges.shape[0] - 2)
@@ -340,16 +334,17 @@ def _sample_statistics(
     def statistics(state, snap, t, peak, step_number):
         """The saved time's sums, and ``peak`` (batch, n_peaks), each sample's largest magnitude of each of
         the ``peaks`` quantities so far (None at the first), updated with this saved time's (the end of step
-        ``step_number``)."""
+        ``step_number``). At the saved step ``peak_from`` and before, the peak restarts from this time's
+        magnitude: it is taken from there on (a select per save; within the step loop, a per-step condition
+        made XLA split the gear pair's step, docs/performance.md)."""
         q = recorded(state, snap, t)
         delta = q[:, 2 * n : 2 * n + nc]
         mean = weights @ q / total
         m2 = weights @ (q - mean[None, :]) ** 2
         loss = weights @ (jnp.abs(delta) < clearance[None, :]).astype(q.dtype)
         magnitude = jnp.abs(q[:, list(peak_columns)])
-        if peak is None:
-            peak = jnp.full_like(magnitude, -jnp.inf)
-        peak = _later_peak(peak, magnitude, step_number >= peak_from)
+        peak = magnitude if peak is None else jnp.maximum(peak, magnitude)
+        peak = jnp.where(step_number <= peak_from, magnitude, peak)
         # the values' counts, then the peaks': (n_hist + n_peaks, n_bins)
         n_hist = len(hist_columns)
         counts = [count(hist_edges[j], q[:, c]) for j, c in enumerate(hist_columns)]
@@ -382,7 +377,7 @@ def _sample_statistics(
             if output_peaks:
                 a_u, a_v, offset = _output_maps(system, snap1, observables, t1, output_columns)
                 outputs = state.u @ a_u + state.v @ a_v + offset[None, :]
-            peak = peak_of_step(peak, state, outputs, step_number)
+            peak = peak_of_step(peak, state, outputs)
             return (state, snap1, bad + jnp.sum(weights * (~ok)), peak), None
 
         block_inputs = block_draws
@@ -413,7 +408,7 @@ def _sample_statistics(
             if output_peaks:  # a product of their own, so that the step itself is the same with peaks or not
                 rows, force_rows, offset = output_rows
                 outputs = eigen_outputs(eigen, state, rows, force_rows) + offset[None, :]
-            peak = peak_of_step(peak, state, outputs, step_number)
+            peak = peak_of_step(peak, state, outputs)
             return (state, snap, bad + jnp.sum(weights * (~ok)), peak), None
 
     def record(c, _, block_index):
@@ -715,8 +710,8 @@ def monte_carlo(
             level by then). Every peak is taken over every step, not only the saved times: a contact force's
             from the forces each step carries, any other quantity's from the state at each step's end (for
             those, a small product per step; docs/performance.md, "Peaks of a quantity").
-        peak_start: time (s) from which the peaks are taken (the nearest step; default ``t0``), e.g. after a
-            start-up transient; every histogram time must be at or after it.
+        peak_start: time (s) from which the peaks are taken (the nearest saved time; default ``t0``), e.g.
+            after a start-up transient; every histogram time must be at or after it.
         progress: show a progress bar over chunks.
         propagation: coordinates the samples are stepped in. ``"eigen"``: the real eigenbasis of the
             contact-free Newmark map (:mod:`pgtjax._eigenbasis`; constant K and C only), O(n (nc + n_draws))
