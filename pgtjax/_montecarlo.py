@@ -142,6 +142,11 @@ def _check_histogram_times(histogram_times, histograms, t0, duration, save_inter
     return values
 
 
+def _saved_times(t0, dt, n_steps: int, save_every: int) -> np.ndarray:
+    """The saved times (s) of a run, (n_steps // save_every + 1,): ``t0`` and every block's end."""
+    return float(t0) + float(dt) * save_every * np.arange(n_steps // save_every + 1)
+
+
 def _peak_start_step(peak_start, peaks, histogram_times, t0, dt, n_steps: int, save_every: int) -> int:
     """The step (its end's index; 0: ``t0``) from which the peaks are taken: the saved step nearest
     ``peak_start`` (s; None: ``t0``). ``ValueError`` unless it lies within the run, there are peaks, and every
@@ -162,9 +167,9 @@ def _peak_start_step(peak_start, peaks, histogram_times, t0, dt, n_steps: int, s
             f"`peak_start` must lie within the run, [{t0:.6g}, {end:.6g}] s (the nearest saved time is taken), "
             f"got {peak_start!r}"
         )
-    saved_steps = save_every * np.arange(n_steps // save_every + 1)
-    step = int(saved_steps[np.argmin(np.abs(t0 + dt * saved_steps - start))])
-    early = [t for t in histogram_times if saved_steps[np.argmin(np.abs(t0 + dt * saved_steps - t))] < step]
+    times = _saved_times(t0, dt, n_steps, save_every)  # as the result reports them
+    step = save_every * int(np.argmin(np.abs(times - start)))
+    early = [t for t in histogram_times if save_every * int(np.argmin(np.abs(times - t))) < step]
     if early:
         raise ValueError(
             f"`histogram_times` {early} (each at its nearest saved time) come before `peak_start` "
@@ -807,7 +812,8 @@ def monte_carlo(
         )
         if peaks and not histogram_times:
             raise ValueError(
-                "`peaks` are reported at `histogram_times` (the peak from t0 to each): give at least one, "
+                "`peaks` are reported at `histogram_times` (the peak from t0, or `peak_start`, to each): give at "
+                "least one, "
                 f"e.g. the run's end, {float(t0) + float(dt) * n_steps:.6g} s"
             )
         peak_from = _peak_start_step(peak_start, peaks, histogram_times, t0, dt, n_steps, save_every)
@@ -937,7 +943,7 @@ def monte_carlo(
     std = np.sqrt(np.maximum(m2, 0.0) / (total_n - 1.0))
     nc = system.n_contacts
     cut = np.cumsum([n, n, nc, nc])
-    times = t0 + dt * save_every * np.arange(n_steps // save_every + 1)
+    times = _saved_times(t0, dt, n_steps, save_every)
     if throw:
         raise_if_nonfinite("monte_carlo", times, {"sample mean": (mean, names), "sample std": (std, names)})
         if bad:
@@ -967,7 +973,7 @@ def monte_carlo(
         histogram_edges={name: jnp.asarray(e) for name, e in zip(histograms, edges)},
         histograms={name: jnp.asarray(counts[hist_idx, j]) for j, name in enumerate(histograms)},
         peak_edges={name: jnp.asarray(e) for name, e in zip(peaks, edges[len(histograms) :])},
-        peak_start=float(t0) + float(dt) * peak_from if peaks else None,
+        peak_start=float(times[peak_from // save_every]) if peaks else None,
         peak_histograms={
             name: jnp.asarray(counts[hist_idx, len(histograms) + j]) for j, name in enumerate(peaks)
         },

@@ -166,11 +166,13 @@ class TimeAverage(NamedTuple):
 
 
 class PeakExceedance(NamedTuple):
-    """The probability that a quantity's peak (its largest magnitude since ``t0``) has reached each level by
+    """The probability that a quantity's peak (its largest magnitude since ``start``) has reached each level by
     each histogram time, from Monte Carlo's peak counts (:meth:`MonteCarloResult.peak_exceedance`)."""
 
     levels: np.ndarray  # (n_bins,) the bins' upper edges, in the quantity's unit
-    probability: np.ndarray  # (n_hist, n_bins) P(peak >= level) by each of histogram_times
+    probability: (
+        np.ndarray
+    )  # (n_hist, n_bins) P(peak >= level) by each of histogram_times (> at the top edge)
     standard_error: np.ndarray  # (n_hist, n_bins) sqrt(p (1 - p) / n_samples), the binomial one
     times: np.ndarray  # (n_hist,) the histogram times (s)
     start: float  # the time (s) the peaks are taken from
@@ -218,10 +220,9 @@ class MonteCarloResult(_Labelled, _Covariance):
     ``mean_*``/``std_*`` as in :class:`MomentResult` (``std`` with the 1/(N-1) normalisation, thesis
     Eq. 4.66); ``histograms`` maps a quantity name to counts of shape ``(len(histogram_times), n_bins)`` over
     ``histogram_edges[name]``; ``peak_histograms`` likewise counts, over ``peak_edges[name]``, each sample's
-    largest magnitude of the quantity from ``t0`` to each histogram time (a contact force's over every step,
-    another quantity's over the saved times; the
-    distribution of its peak, whence the probability of reaching a level by then; a peak between saved
-    times is not seen); ``unconverged`` counts (sample, step) pairs whose contact Newton solve did not
+    largest magnitude of the quantity over every step from ``peak_start`` (s; ``t0`` where None) to each
+    histogram time (the distribution of its peak, whence the probability of reaching a level by then:
+    :meth:`peak_exceedance`); ``unconverged`` counts (sample, step) pairs whose contact Newton solve did not
     reach its tolerance; ``propagation`` says whether the samples were stepped in physical or eigen-coordinates
     (:mod:`pgtjax._eigenbasis`).
     """
@@ -254,7 +255,8 @@ class MonteCarloResult(_Labelled, _Covariance):
     def peak_exceedance(self, quantity: str) -> PeakExceedance:
         """:class:`PeakExceedance` of one of the ``peaks`` the run counted: P(peak >= each bin's upper edge)
         by each histogram time, the peak taken from ``peak_start``: ``1 - cumsum(counts) / n_samples``. A
-        sample whose peak lies beyond the top edge counts as beyond every level. The edges must start at 0 or
+        sample whose peak lies beyond the top edge counts as beyond every level (a peak equal to the top edge
+        lies in the last bin, so at that level the probability is of ``>``). The edges must start at 0 or
         below, so that no peak (a magnitude) lies below the first edge, where it could not be told from one
         beyond the top."""
         if quantity not in self.peak_histograms:

@@ -753,5 +753,11 @@ def test_peak_quantiles_and_exceedance_from_hand_made_counts():
     assert entry["q99_N"] is None and entry["q999_N"] is None
     assert entry["beyond_top_edge_fraction"] == 0.01 and entry["bin_width_N"] == 1.0
     assert summary["time_s"] == 1.0 and summary["n_samples"] == 100
-    p = study._exceedance(row, 100)  # P(peak >= 1, 2, ..., 10 N)
+    # the result's exceedance rule on the same counts (the figure's): P(peak >= 1, 2, ..., 10 N)
+    mc.peak_start, mc.times = None, np.array([0.0, 1.0])
+    exceedance = pg.MonteCarloResult.peak_exceedance(mc, "force:m")
+    np.testing.assert_array_equal(exceedance.levels, np.arange(1.0, 11.0))
+    p = exceedance.probability[1]
     np.testing.assert_allclose(p, [1, 1, 1, 0.5, 0.5, 0.1, 0.1, 0.1, 0.01, 0.01], rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(exceedance.probability[0], np.ones(10))  # no count yet: all beyond
+    assert exceedance.start == 0.0
