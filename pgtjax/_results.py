@@ -124,6 +124,54 @@ class MomentResult(_Labelled, _Covariance):
         b = jnp.broadcast_to(b, (nc,))
         return _gaussian_gap_probability(self.mean_delta, self.std_delta, b[None, :])
 
+    def peak_exceedance(self, quantity: str, levels, *, start: float | None = None) -> CrossingExceedance:
+        """SL's counterpart of :meth:`MonteCarloResult.peak_exceedance` for a displacement ``"u:<dof>"``:
+        the probability that its peak (largest magnitude from ``start``, s, the nearest saved time; default
+        the first) has reached each of ``levels`` (>= 0, the DOF's unit) by each saved time, from Rice's
+        crossing rate of the Gaussian response (:class:`CrossingExceedance`). It needs the DOF's joint
+        displacement-velocity covariance: solve with ``covariance_dofs`` including it. The rate is integrated
+        over the saved times (trapezoids), so save often enough to follow it (every few steps)."""
+        from ._crossings import crossing_rate, cumulative_trapezoid, exceedance_at_start
+
+        kind, _, dof = quantity.partition(":")
+        if kind != "u":
+            raise ValueError(
+                f"`quantity` must be a displacement 'u:<dof>' (its rate, the velocity, is in SL's covariance), "
+                f"got {quantity!r}"
+            )
+        i = self.dof(dof)
+        if dof not in self.covariance_dofs:
+            raise ValueError(
+                f"the peak of {quantity!r} needs its displacement-velocity covariance: solve with "
+                f"`covariance_dofs` including {dof!r} (saved: {list(self.covariance_dofs) or 'none'})"
+            )
+        a = np.asarray(levels, dtype=np.float64)
+        if a.ndim != 1 or a.size == 0 or not np.all(np.isfinite(a)) or np.any(a < 0):
+            raise ValueError(f"`levels` must be a 1-D array of finite levels >= 0, got {levels!r}")
+        times = np.asarray(self.times)
+        t_start = times[0] if start is None else float(start)
+        if not (np.isfinite(t_start) and times[0] <= t_start <= times[-1]):
+            raise ValueError(
+                f"`start` must lie within the run, [{times[0]:g}, {times[-1]:g}] s, got {start!r}"
+            )
+        k0 = int(np.argmin(np.abs(times - t_start)))
+        j = self.covariance_dofs.index(dof)
+        window = slice(k0, None)
+        mean, std = self.mean_u[window, i], self.std_u[window, i]
+        rate = crossing_rate(
+            a, mean, std, self.mean_v[window, i], self.std_v[window, i], self.cov_uv[window, j, j]
+        )
+        crossings = cumulative_trapezoid(rate, self.times[window])
+        at_start = exceedance_at_start(a, mean[0], std[0])[None, :]
+        return CrossingExceedance(
+            levels=jnp.asarray(a),
+            probability=1.0 - (1.0 - at_start) * jnp.exp(-crossings),
+            upper_bound=jnp.minimum(1.0, at_start + crossings),
+            expected_crossings=crossings,
+            times=self.times[window],
+            start=float(times[k0]),
+        )
+
     @classmethod
     def from_saved(cls, system, times, saved, *, criterion, observables=None, covariance_dofs=()):
         n, nc = system.n_dof, system.n_contacts
@@ -163,6 +211,19 @@ class TimeAverage(NamedTuple):
     std: np.ndarray  # (k,) time average of the sample standard deviation
     std_se: np.ndarray  # (k,) its standard error
     n_times: int  # saved times averaged (the window's, trimmed to whole batches)
+
+
+class CrossingExceedance(NamedTuple):
+    """SL's estimate of the probability that a displacement's peak (largest magnitude since ``start``) has
+    reached each level by each saved time, from Rice's crossing rate (:meth:`MomentResult.peak_exceedance`;
+    :mod:`pgtjax._crossings`)."""
+
+    levels: jax.Array  # (k,) in the DOF's unit
+    probability: jax.Array  # (n, k) 1 - (1 - P0) exp(-N): the crossings as a Poisson stream
+    upper_bound: jax.Array  # (n, k) min(1, P0 + N): a bound for a Gaussian response
+    expected_crossings: jax.Array  # (n, k) N, the mean number of times |u| reached the level since start
+    times: jax.Array  # (n,) the saved times from start on (s)
+    start: float  # s
 
 
 class PeakExceedance(NamedTuple):
