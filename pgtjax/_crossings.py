@@ -2,9 +2,9 @@
 Carlo's peak counts (:meth:`pgtjax.MomentResult.peak_exceedance`; docs/peaks.md).
 
 For a Gaussian process ``X(t)`` with the joint moments of ``(X, dX/dt)`` at each time, the mean rate at which
-``|X|`` reaches a level ``a`` (up-crossings of ``+a`` and down-crossings of ``-a``) is Rice's formula
-(S. O. Rice, Mathematical analysis of random noise, Bell Syst. Tech. J. 24, 1945, Eq. 3.3-5; non-stationary
-form as in Y. K. Lin, Probabilistic Theory of Structural Dynamics, 1967, Sec. 9.2):
+``|X|`` reaches a level ``a`` (up-crossings of ``+a`` and down-crossings of ``-a``) is Rice's expected rate of
+crossings (S. O. Rice, Mathematical analysis of random noise, Bell Syst. Tech. J. 24, 1945, part III), written
+with the moments of each time (Y. K. Lin, Probabilistic Theory of Structural Dynamics, 1967):
 
     nu(a, t) = p_X(a) E[(dX/dt)^+ | X = a] + p_X(-a) E[(dX/dt)^- | X = -a]
 
@@ -20,6 +20,8 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 from jax.scipy.special import ndtr
+
+from ._numerics import safe_sqrt
 
 _INV_SQRT_2PI = 0.3989422804014327
 
@@ -45,7 +47,9 @@ def crossing_rate(levels, mean, std, rate_mean, rate_std, covariance):
     random = s > 0.0
     s_safe = jnp.where(random, s, 1.0)
     # the rate given X = x: mean md + c (x - m) / s^2, std sqrt(sd^2 - c^2 / s^2) (Cauchy-Schwarz: >= 0)
-    conditional_std = jnp.sqrt(jnp.maximum(sd * sd - (c / s_safe) ** 2, 0.0))
+    # safe_sqrt: the variance is exactly 0 where u and v are fully correlated (the first Newmark step from
+    # rest, u1 = dt v1 / 2), and a plain sqrt's derivative there turned gradients into NaN
+    conditional_std = safe_sqrt(sd * sd - (c / s_safe) ** 2)
     total = 0.0
     for x, sign in ((a, 1.0), (-a, -1.0)):  # up through +a; down through -a (the rate's negative part)
         density = _normal_density((x - m) / s_safe) / s_safe
@@ -63,7 +67,9 @@ def exceedance_at_start(levels, mean, std):
     return jnp.where(random, gaussian, (jnp.abs(mean) >= a).astype(a.dtype))
 
 
-def cumulative_trapezoid(values, times):
-    """``int_{times[0]}^{times[j]} values dt`` for every j (trapezoids), (n, k) from (n, k) and (n,)."""
+def cumulative_trapezoid(values, times, first=0):
+    """``int_{times[first]}^{times[j]} values dt`` for every j (trapezoids; 0 for j <= first), (n, k) from
+    (n, k) and (n,); ``first`` may be traced."""
     steps = 0.5 * (values[1:] + values[:-1]) * jnp.diff(times)[:, None]
+    steps = jnp.where((jnp.arange(steps.shape[0]) >= first)[:, None], steps, 0.0)
     return jnp.concatenate([jnp.zeros_like(values[:1]), jnp.cumsum(steps, axis=0)])

@@ -128,11 +128,16 @@ class MomentResult(_Labelled, _Covariance):
         """SL's counterpart of :meth:`MonteCarloResult.peak_exceedance` for a displacement ``"u:<dof>"``:
         the probability that its peak (largest magnitude from ``start``, s, the nearest saved time; default
         the first) has reached each of ``levels`` (>= 0, the DOF's unit) by each saved time, from Rice's
-        crossing rate of the Gaussian response (:class:`CrossingExceedance`). It needs the DOF's joint
-        displacement-velocity covariance: solve with ``covariance_dofs`` including it. The rate is integrated
-        over the saved times (trapezoids), so save often enough to follow it (every few steps)."""
+        crossing rate of the Gaussian response (:class:`CrossingExceedance`; rows before ``start`` are 0). It
+        needs the DOF's joint displacement-velocity covariance: solve with ``covariance_dofs`` including it.
+        The rate is integrated over the saved times (trapezoids), so save often enough to follow it: every
+        few steps, and far more often than ``std / |d mean / dt|`` where the response is nearly deterministic
+        (a deterministic displacement, std = 0, has no crossings counted). Works under ``jax.jit`` and
+        ``jax.grad`` (the levels and ``start`` are not differentiated)."""
         from ._crossings import crossing_rate, cumulative_trapezoid, exceedance_at_start
 
+        if not isinstance(quantity, str):
+            raise ValueError(f"`quantity` must be a name 'u:<dof>', got {type(quantity).__name__}")
         kind, _, dof = quantity.partition(":")
         if kind != "u":
             raise ValueError(
@@ -145,31 +150,39 @@ class MomentResult(_Labelled, _Covariance):
                 f"the peak of {quantity!r} needs its displacement-velocity covariance: solve with "
                 f"`covariance_dofs` including {dof!r} (saved: {list(self.covariance_dofs) or 'none'})"
             )
-        a = np.asarray(levels, dtype=np.float64)
-        if a.ndim != 1 or a.size == 0 or not np.all(np.isfinite(a)) or np.any(a < 0):
+        try:
+            a = np.asarray(levels, dtype=np.float64)
+        except (TypeError, ValueError):
+            a = None
+        if a is None or a.ndim != 1 or a.size == 0 or not np.all(np.isfinite(a)) or np.any(a < 0):
             raise ValueError(f"`levels` must be a 1-D array of finite levels >= 0, got {levels!r}")
-        times = np.asarray(self.times)
-        t_start = times[0] if start is None else float(start)
-        if not (np.isfinite(t_start) and times[0] <= t_start <= times[-1]):
-            raise ValueError(
-                f"`start` must lie within the run, [{times[0]:g}, {times[-1]:g}] s, got {start!r}"
-            )
-        k0 = int(np.argmin(np.abs(times - t_start)))
+        times = self.times
+        first = 0
+        if start is not None:
+            try:
+                t_start = float(start)
+            except (TypeError, ValueError):
+                raise ValueError(f"`start` must be a time (s), got {start!r}") from None
+            if not isinstance(times, jax.core.Tracer):  # a result of a traced solve: not checked
+                grid = np.asarray(times)
+                if not (np.isfinite(t_start) and grid[0] <= t_start <= grid[-1]):
+                    raise ValueError(
+                        f"`start` must lie within the run, [{grid[0]:g}, {grid[-1]:g}] s, got {start!r}"
+                    )
+            first = jnp.argmin(jnp.abs(times - t_start))
         j = self.covariance_dofs.index(dof)
-        window = slice(k0, None)
-        mean, std = self.mean_u[window, i], self.std_u[window, i]
-        rate = crossing_rate(
-            a, mean, std, self.mean_v[window, i], self.std_v[window, i], self.cov_uv[window, j, j]
-        )
-        crossings = cumulative_trapezoid(rate, self.times[window])
-        at_start = exceedance_at_start(a, mean[0], std[0])[None, :]
+        mean, std = self.mean_u[:, i], self.std_u[:, i]
+        rate = crossing_rate(a, mean, std, self.mean_v[:, i], self.std_v[:, i], self.cov_uv[:, j, j])
+        crossings = cumulative_trapezoid(rate, times, first)
+        at_start = exceedance_at_start(a, mean[first], std[first])[None, :]
+        counted = (jnp.arange(times.shape[0]) >= first)[:, None]
         return CrossingExceedance(
             levels=jnp.asarray(a),
-            probability=1.0 - (1.0 - at_start) * jnp.exp(-crossings),
-            upper_bound=jnp.minimum(1.0, at_start + crossings),
+            probability=jnp.where(counted, 1.0 - (1.0 - at_start) * jnp.exp(-crossings), 0.0),
+            upper_bound=jnp.where(counted, jnp.minimum(1.0, at_start + crossings), 0.0),
             expected_crossings=crossings,
-            times=self.times[window],
-            start=float(times[k0]),
+            times=times,
+            start=times[first],
         )
 
     @classmethod
@@ -216,14 +229,14 @@ class TimeAverage(NamedTuple):
 class CrossingExceedance(NamedTuple):
     """SL's estimate of the probability that a displacement's peak (largest magnitude since ``start``) has
     reached each level by each saved time, from Rice's crossing rate (:meth:`MomentResult.peak_exceedance`;
-    :mod:`pgtjax._crossings`)."""
+    :mod:`pgtjax._crossings`). Rows before ``start`` are 0."""
 
     levels: jax.Array  # (k,) in the DOF's unit
     probability: jax.Array  # (n, k) 1 - (1 - P0) exp(-N): the crossings as a Poisson stream
-    upper_bound: jax.Array  # (n, k) min(1, P0 + N): a bound for a Gaussian response
+    upper_bound: jax.Array  # (n, k) min(1, P0 + N): a bound, up to the error of the trapezoids
     expected_crossings: jax.Array  # (n, k) N, the mean number of times |u| reached the level since start
-    times: jax.Array  # (n,) the saved times from start on (s)
-    start: float  # s
+    times: jax.Array  # (n,) the saved times (s)
+    start: jax.Array  # s, the saved time the peaks are taken from
 
 
 class PeakExceedance(NamedTuple):
