@@ -78,6 +78,34 @@ def test_two_dof_optimum_matches_the_hand_derived_one():
     assert result.z.dtype == np.float64
 
 
+def test_sl_peak_probability_as_a_design_objective_has_the_gradient_of_a_central_difference():
+    """``Response(covariance_dofs=...)`` keeps the joint covariance SL's peak estimate reads, so a ``Custom``
+    objective on ``result.peak_exceedance`` (the probability that q1's peak from 2 s on has reached 0.5 m by
+    10 s) runs in the compiled design problem, with the gradient of a central difference in the variables."""
+    space = pd.DesignSpace(
+        Chain(jnp.asarray(1.0), jnp.asarray(3.0)),
+        [pd.Variable("k1", 0.01, 100.0), pd.Variable("k2", 0.01, 100.0)],
+    )
+    response = pd.Response(
+        build=chain_system, dt=0.05, n_steps=200, initial_covariance=stationary, covariance_dofs=["q1"]
+    )
+    peak = pd.Custom(
+        fn=lambda result, system: result.peak_exceedance("u:q1", [0.5], start=2.0).probability[-1, 0],
+        label="P(peak |q1| >= 0.5 m)",
+        unit="1",
+    )
+    problem = pd.DesignProblem(space, response, peak, [], normalize=False)
+    z = jnp.array([0.3, -0.2])
+    value, grad = jax.jit(jax.value_and_grad(problem.value))(z)
+    assert 0.05 < float(value) < 0.95 and grad.dtype == jnp.float64
+    h = 1e-5
+    for i in range(2):
+        e = jnp.zeros(2).at[i].set(h)
+        fd = (problem.value(z + e) - problem.value(z - e)) / (2 * h)
+        np.testing.assert_allclose(float(grad[i]), float(fd), rtol=1e-6)
+    assert float(grad[0]) != 0.0 and float(grad[1]) != 0.0
+
+
 def test_grouped_checkpoints_leave_the_objective_and_its_gradient_unchanged():
     """``Response(checkpoint_blocks=k)`` reaches ``solve_moments``: the same value and gradient (the state kept
     once per 3 saved blocks, 20 blocks: a group left incomplete), and a bad k is refused when the problem is built."""

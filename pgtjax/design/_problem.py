@@ -37,7 +37,9 @@ class Response(eqx.Module):
     optional ``observables(params) -> Observables``; the horizon ``n_steps`` steps of ``dt`` (s), saved
     every ``save_every`` steps; SL with ``criterion`` and the per-step tolerance ``rtol``; reverse mode keeps the
     state once per ``checkpoint_blocks`` saved blocks (``solve_moments``'s option: less memory for long runs of
-    large models, for 0.6 to 1.5 forward runs more per gradient, measured)."""
+    large models, for 0.6 to 1.5 forward runs more per gradient, measured); ``covariance_dofs``: DOF names (or
+    ``"all"``) whose joint covariance SL keeps, for objectives that read it (e.g. a :class:`Custom` one with
+    ``result.peak_exceedance``, SL's peak probability of a displacement)."""
 
     build: Callable = eqx.field(static=True)
     dt: float = eqx.field(static=True)
@@ -49,6 +51,9 @@ class Response(eqx.Module):
     criterion: str = eqx.field(static=True, default="force")
     rtol: float = eqx.field(static=True, default=1e-10)
     checkpoint_blocks: int = eqx.field(static=True, default=1)
+    covariance_dofs: tuple[str, ...] | str | None = eqx.field(
+        static=True, default=None, converter=lambda d: d if d is None or isinstance(d, str) else tuple(d)
+    )
 
     def __check_init__(self):
         if not callable(self.build):
@@ -82,6 +87,7 @@ class Response(eqx.Module):
             throw=throw,
             # a run saved at another interval reports (not differentiated): its blocks are kept one by one
             checkpoint_blocks=self.checkpoint_blocks if every == self.save_every else 1,
+            covariance_dofs=self.covariance_dofs,
         )
         return system, result
 
