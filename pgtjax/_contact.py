@@ -276,6 +276,13 @@ class ContactLaw(eqx.Module):
         b = jnp.asarray(b, jnp.float64)
         return self.stiffness(b * (1.0 + 1e-9) + 1e-30, inputs, b)
 
+    def deflections_at_force(self, force, inputs, b):
+        """The deflections (m) at which the force reaches ``+force`` and ``-force`` (``force`` >= 0, N),
+        ``(upper, lower)``: the barriers that ``|f| >= force`` sets on the deflection, which SL's peak estimate
+        of a contact force needs (:meth:`pgtjax.MomentResult.peak_exceedance`). Only for a law whose force
+        grows with the deflection's magnitude outside the clearance; the default raises NotImplementedError."""
+        raise NotImplementedError(f"{type(self).__name__} does not give the deflections at a force level")
+
     def affine_piece(self, delta, inputs, b):
         """Integer label of the interval of ``delta`` on which the law is affine, elementwise; ``None`` if the
         law is not piecewise affine (the default)."""
@@ -393,6 +400,12 @@ class Backlash(ContactLaw):
             return criterion.coefficients(f_0, k_force, None)
         excess = stats[2]
         return criterion.coefficients(f_0, k_force, 0.5 * k * (excess[0] + excess[1]))
+
+    def deflections_at_force(self, force, k, b):
+        # |f| >= F where |delta| >= b + F / k; a contact without stiffness never reaches F (barrier at infinity)
+        positive = k > 0.0
+        upper = jnp.where(positive, b + force / jnp.where(positive, k, 1.0), jnp.inf)
+        return upper, -upper
 
     def affine_piece(self, delta, k, b):
         # 0: inside the backlash (f = 0), 1: upper flank (k (delta - b)), 2: lower flank (k (delta + b))

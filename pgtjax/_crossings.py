@@ -1,5 +1,8 @@
 """Peaks of a Gaussian response from its moments: Rice's level crossings, for SL's counterpart of Monte
-Carlo's peak counts (:meth:`pgtjax.MomentResult.peak_exceedance`; docs/peaks.md).
+Carlo's peak counts (:meth:`pgtjax.MomentResult.peak_exceedance`; docs/peaks.md). Two forms: Rice's
+continuous-time rate (a displacement, from the displacement-velocity covariance) and its discrete-time
+counterpart, the probability of crossing between consecutive steps (a contact deflection or force, from the
+covariance of each step with the one before: the peaks Monte Carlo takes, whatever the step resolves).
 
 For a Gaussian process ``X(t)`` with the joint moments of ``(X, dX/dt)`` at each time, the mean rate at which
 ``|X|`` reaches a level ``a`` (up-crossings of ``+a`` and down-crossings of ``-a``) is Rice's expected rate of
@@ -19,6 +22,7 @@ whose crossings come in clumps.
 from __future__ import annotations
 
 import jax.numpy as jnp
+import numpy as np
 from jax.scipy.special import ndtr
 
 from ._numerics import safe_sqrt
@@ -61,10 +65,95 @@ def crossing_rate(levels, mean, std, rate_mean, rate_std, covariance):
 def exceedance_at_start(levels, mean, std):
     """P(|X| >= a) for X ~ N(mean, std^2) (scalars), each level (k,); for std = 0, whether |mean| >= a."""
     a = jnp.asarray(levels)
+    return outside_probability(a, -a, mean, std)
+
+
+def outside_probability(upper, lower, mean, std):
+    """P(X >= upper or X <= lower) for X ~ N(mean, std^2) (scalars), barriers (k,) with lower <= upper; for
+    std = 0, whether the mean lies outside."""
     random = std > 0.0
     s_safe = jnp.where(random, std, 1.0)
-    gaussian = ndtr((mean - a) / s_safe) + ndtr((-a - mean) / s_safe)
-    return jnp.where(random, gaussian, (jnp.abs(mean) >= a).astype(a.dtype))
+    gaussian = ndtr((mean - upper) / s_safe) + ndtr((lower - mean) / s_safe)
+    outside = (mean >= upper) | (mean <= lower)
+    return jnp.where(random, gaussian, outside.astype(jnp.result_type(upper, float)))
+
+
+# Gauss-Legendre nodes on (0, 1) for _correlation_tail; the substitution s = sqrt(1 - rho) u^3 gathers them where
+# the integrand rises steeply (near s = |h - k| / 2 for close levels). 32 nodes: within 1e-5 of the
+# probability (relative) against adaptive high-precision quadrature (tests/test_crossings.py).
+_GAUSS_LEGENDRE = np.polynomial.legendre.leggauss(32)
+_NODES, _WEIGHTS = 0.5 * (_GAUSS_LEGENDRE[0] + 1.0), 0.5 * _GAUSS_LEGENDRE[1]
+
+
+def _correlation_tail(h, k, rho):
+    """``Phi2(h, k; 1) - Phi2(h, k; rho) = int_rho^1 phi2(h, k; r) dr`` for standard bivariate normals with
+    correlation ``rho`` in [0, 1] (Plackett's identity d Phi2 / d rho = phi2), written with ``r = 1 - s^2`` so
+    that the integrand is bounded:
+    ``(1 / pi) int_0^sqrt(1 - rho) exp(-(h - k)^2 / (2 s^2 (2 - s^2)) - h k / (2 - s^2)) / sqrt(2 - s^2) ds``.
+    Elementwise; >= 0."""
+    top = safe_sqrt(1.0 - rho)[..., None]
+    shape = (1,) * (top.ndim - 1) + (-1,)  # the nodes on a trailing axis (no implicit rank promotion)
+    u, weights = jnp.asarray(_NODES).reshape(shape), jnp.asarray(_WEIGHTS).reshape(shape)
+    s = top * u**3
+    s2 = s * s
+    # s > 0 at every node (and top > 0); where top = 0 the weights are 0 and so is the sum
+    s2_safe = jnp.where(s2 > 0.0, s2, 1.0)
+    exponent = -((h - k)[..., None] ** 2) / (2.0 * s2_safe * (2.0 - s2)) - (h * k)[..., None] / (2.0 - s2)
+    integrand = jnp.where(s2 > 0.0, jnp.exp(exponent), 0.0) / jnp.sqrt(2.0 - s2)
+    return jnp.sum(weights * 3.0 * u**2 * top * integrand, axis=-1) / np.pi
+
+
+def step_crossing_probability(before, after, rho):
+    """P(X < before, Y >= after) for standard normals X, Y with correlation ``rho`` (elementwise, broadcast):
+    the probability that a level is crossed upwards between two steps, the levels standardized by each step's
+    moments. Written as sums of non-negative terms, so that a small probability (close levels, rho near 1)
+    keeps its relative accuracy."""
+    before, after, rho = jnp.broadcast_arrays(*(jnp.asarray(x, jnp.float64) for x in (before, after, rho)))
+    rho = jnp.clip(rho, -1.0, 1.0)
+    positive = rho >= 0.0
+    # rho >= 0: Phi(-b) - Phi2(-a, -b; rho) = (Phi(-b) - Phi(-a))^+ + tail(-a, -b, rho)
+    same = jnp.where(before > after, ndtr(-after) - ndtr(-before), 0.0) + _correlation_tail(
+        -before, -after, jnp.where(positive, rho, 0.0)
+    )
+    # rho < 0: Phi2(a, -b; -rho) = Phi(min(a, -b)) - tail(a, -b, -rho)
+    opposite = ndtr(jnp.minimum(before, -after)) - _correlation_tail(
+        before, -after, jnp.where(positive, 0.0, -rho)
+    )
+    return jnp.where(positive, same, jnp.maximum(opposite, 0.0))
+
+
+def step_crossings(upper, lower, mean, std, lag_covariance):
+    """Probability that ``X`` leaves the band between ``lower`` and ``upper`` between each pair of consecutive
+    steps: up through ``upper`` or down through ``lower`` (each (n, k), barriers that may move from step to
+    step), from X's mean and std at each step and the covariance of each step with the one before
+    (``lag_covariance``, (n,); the first unused). Returns (n - 1, k), row j for the step from j to j + 1. A
+    deterministic step (std 0) enters through its value."""
+    m, s, lag = (jnp.asarray(x) for x in (mean, std, lag_covariance))
+    s0, s1 = s[:-1, None], s[1:, None]
+    m0, m1 = m[:-1, None], m[1:, None]
+    random0, random1 = s0 > 0.0, s1 > 0.0
+    safe0, safe1 = jnp.where(random0, s0, 1.0), jnp.where(random1, s1, 1.0)
+    rho = jnp.where(random0 & random1, lag[1:, None] / (safe0 * safe1), 0.0)
+
+    def up(barrier0, barrier1, sign):
+        # a barrier at infinity (a force level of a contact without stiffness) is never crossed
+        reachable = jnp.isfinite(barrier0) & jnp.isfinite(barrier1)
+        barrier0, barrier1 = jnp.where(reachable, barrier0, m0), jnp.where(reachable, barrier1, m1)
+        # the levels standardized (sign -1: the lower barrier, as an upper one of -X)
+        a = sign * (barrier0 - m0) / safe0
+        b = sign * (barrier1 - m1) / safe1
+        both = step_crossing_probability(a, b, rho)
+        # a deterministic step: its side of the barrier is known
+        inside0 = (sign * (m0 - barrier0) < 0.0).astype(a.dtype)
+        outside1 = (sign * (m1 - barrier1) >= 0.0).astype(a.dtype)
+        crossing = jnp.where(
+            random0,
+            jnp.where(random1, both, ndtr(a) * outside1),
+            jnp.where(random1, inside0 * ndtr(-b), inside0 * outside1),
+        )
+        return jnp.where(reachable, crossing, 0.0)
+
+    return up(upper[:-1], upper[1:], 1.0) + up(lower[:-1], lower[1:], -1.0)
 
 
 def cumulative_trapezoid(values, times, first=0):

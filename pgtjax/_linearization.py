@@ -358,6 +358,8 @@ class _Carry(NamedTuple):
     snap: Snapshot
     z: jax.Array  # contact (mu, sigma) at the current time, (2 nc,)
     lin: Linearization  # the contacts' (k_e, f_0) at z, (nc,) each
+    # with deflection_lag: each contact deflection's covariance with its value one step before, (nc,)
+    lag: jax.Array | None = None
 
 
 def _linearize_contacts(system, snap: Snapshot, z, criterion) -> Linearization:
@@ -411,6 +413,15 @@ class _Saved(NamedTuple):
     residual: jax.Array
     converged: jax.Array
     covariance: jax.Array  # (2m, 2m) of the selected (u, v), m = len(covariance_dofs)
+    delta_lag: jax.Array | None  # (nc,) each deflection's covariance with its value one step earlier
+
+
+def _deflection_lag(g0, g1, cov, c_mat) -> jax.Array:
+    """Covariance of each contact deflection at a step's end with its value at the step's start, (nc,):
+    ``g1^T Cov(u1, u0) g0`` with ``Cov(u1, x0) = X_u P = P[:n] + dX P`` (the noise of the step is independent
+    of the start). ``c_mat`` = dX P (n, 2n); ``g0``, ``g1`` the directions at the two ends (n, nc)."""
+    n = g0.shape[0]
+    return jnp.sum(g1 * ((cov[:n, :n] + c_mat[:, :n]) @ g0), axis=0)
 
 
 def _record(system, carry: _Carry, info: _FixedPointInfo, t, observables, cov_index=()) -> _Saved:
@@ -447,10 +458,13 @@ def _record(system, carry: _Carry, info: _FixedPointInfo, t, observables, cov_in
         info.residual,
         info.converged,
         carry.cov[np.ix_(cov_index, cov_index)] if cov_index else jnp.zeros((0, 0)),
+        carry.lag,
     )
 
 
-def _moment_step(system: System, carry: _Carry, t1, h, criterion, integrator, rtol, max_iter, lu_const=None):
+def _moment_step(
+    system: System, carry: _Carry, t1, h, criterion, integrator, rtol, max_iter, lu_const=None, with_lag=False
+):
     """One step of the recursion. The covariance update ``Phi P Phi^T + Gamma Gamma^T`` is done blockwise
     from the displacement increments ``dX = K_eff^-1 [E - K_eff, D]`` of the one-step map (Phi itself is
     never formed): with ``Z = [E - K_eff, D] P``, ``dX P = K_eff^-1 Z`` and ``dX P dX^T = K_eff^-1 Z
@@ -515,13 +529,17 @@ def _moment_step(system: System, carry: _Carry, t1, h, criterion, integrator, rt
         gamma = jnp.concatenate([g_u, g_v], axis=0)
         new_cov = phi @ cov @ phi.T + gamma @ gamma.T
         new_cov = 0.5 * (new_cov + new_cov.T)
+        c_mat = dx_u @ cov if with_lag else None
     else:
         z_mat = rhs_increment @ cov  # [E - K_eff, D] P, (n, 2n)
         c_mat = solve(z_mat)  # dX P
         d_cov = solve(solve((z_mat @ rhs_increment.T).T).T)  # dX P dX^T
         new_cov = _assemble_covariance(cov, d_cov, c_mat, g_u, g_v, h)
     new_mean = jnp.concatenate([u_mean, (2.0 / h) * (u_mean - mean[:n]) - mean[n:]])
-    return _Carry(new_mean, new_cov, s1, z1, lin1), info
+    lag = None
+    if with_lag:
+        lag = _deflection_lag(s0.direction, s1.direction, cov, c_mat) if nc else jnp.zeros((0,))
+    return _Carry(new_mean, new_cov, s1, z1, lin1, lag), info
 
 
 def _assemble_covariance(cov, d_cov, c_mat, g_u, g_v, h):
@@ -602,7 +620,16 @@ def _varying_snapshot(system: System, t) -> Snapshot:
 
 
 def _moment_step_constant(
-    system: System, carry: _Carry, t1, h, criterion, integrator, rtol, max_iter, prop: ConstantPropagator
+    system: System,
+    carry: _Carry,
+    t1,
+    h,
+    criterion,
+    integrator,
+    rtol,
+    max_iter,
+    prop: ConstantPropagator,
+    with_lag=False,
 ):
     """One step of the recursion when K and C are constant (only the contacts, load and noise input vary).
 
@@ -660,7 +687,10 @@ def _moment_step_constant(
     g_v = (2.0 / h) * g_u + v_noise
     new_cov = _assemble_covariance(cov, d_cov, c_mat, g_u, g_v, h)
     new_mean = jnp.concatenate([u_mean, (2.0 / h) * (u_mean - mean[:n]) - mean[n:]])
-    return _Carry(new_mean, new_cov, s1, z1, lin1), info
+    lag = None
+    if with_lag:
+        lag = _deflection_lag(s0.direction, s1.direction, cov, c_mat) if nc else jnp.zeros((0,))
+    return _Carry(new_mean, new_cov, s1, z1, lin1, lag), info
 
 
 def solve_moments(
@@ -683,6 +713,7 @@ def solve_moments(
     checkpoint_blocks: int = 1,
     observables: Observables | None = None,
     covariance_dofs: Sequence[str] | str | None = None,
+    deflection_lag: bool = False,
 ) -> MomentResult:
     """Mean and standard deviation of every DOF, contact deflection and contact force by SL + stochastic
     Newmark (thesis Eqs. 3.43-3.53, 4.51-4.63).
@@ -724,6 +755,9 @@ def solve_moments(
             saved, ``result.covariance`` (n_times, 2m, 2m) ordered ``(u_1..u_m, v_1..v_m)``, with the blocks
             ``cov_uu``, ``cov_uv``, ``cov_vv`` (m, 2m and m^2 numbers per saved time, so select what you need
             for a large model).
+        deflection_lag: also save each contact deflection's covariance with its value one step earlier
+            (``cov_delta_lag``, m^2; needs ``save_every = 1``): what SL's peak estimate of a contact deflection
+            or force needs (:meth:`pgtjax.MomentResult.peak_exceedance`).
     """
     validate_system(system, t0)
     cov_index = covariance_index(system, covariance_dofs)
@@ -734,7 +768,15 @@ def solve_moments(
         raise ValueError("`checkpoint_blocks` > 1 groups rematerialized blocks: it needs `checkpoint=True`")
     check_observables(system, observables, t0)
     n_obs = 0 if observables is None else len(observables.names)
-    per_save = 4 * system.n_dof + 6 * system.n_contacts + 2 * n_obs + len(cov_index) ** 2 + 3
+    if not isinstance(deflection_lag, bool):
+        raise ValueError(f"`deflection_lag` must be True or False, got {deflection_lag!r}")
+    if deflection_lag and save_every != 1:
+        raise ValueError(
+            "`deflection_lag` pairs each saved time with the step before it, for peaks taken over every step: it "
+            f"needs save_every = 1, got {save_every}"
+        )
+    per_save = 4 * system.n_dof + (6 + deflection_lag) * system.n_contacts + 2 * n_obs
+    per_save += len(cov_index) ** 2 + 3
     check_memory("solve_moments", n_steps // save_every + 1, per_save)
     check_contact_stiffness_over_time(system, t0, dt, n_steps)
     check_stability(system, t0, horizon=None if isinstance(dt, jax.core.Tracer) else n_steps * float(dt))
@@ -763,6 +805,7 @@ def solve_moments(
         checkpoint_blocks=checkpoint_blocks,
         observables=observables,
         cov_index=cov_index,
+        deflection_lag=deflection_lag,
     )
     return _checked(result) if throw else result
 
@@ -815,6 +858,7 @@ def _solve_moments_jit(
     checkpoint_blocks,
     observables,
     cov_index,
+    deflection_lag,
 ):
     mean0 = jnp.concatenate([u0, v0])
     # the recursion and its derivative rules take P symmetric (each step ends symmetrized); so is the start
@@ -824,7 +868,8 @@ def _solve_moments_jit(
     constant_path = prop is not None and system.n_dof > _DENSE_PHI_MAX_DOF
     s0 = _varying_snapshot(system, t0) if constant_path else snapshot(system, t0)
     z0 = _contact_state(system, s0, mean0, p0)
-    carry = _Carry(mean0, p0, s0, z0, _linearize_contacts(system, s0, z0, criterion))
+    lag0 = jnp.zeros((system.n_contacts,)) if deflection_lag else None  # no step before t0
+    carry = _Carry(mean0, p0, s0, z0, _linearize_contacts(system, s0, z0, criterion), lag0)
     no_iterations = _FixedPointInfo(jnp.array(0), jnp.array(0.0), jnp.array(True))
     first = _record(system, carry, no_iterations, t0, observables, cov_index)
     n_blocks = n_steps // save_every
@@ -839,8 +884,12 @@ def _solve_moments_jit(
     def step(c, step_number, _):
         t1 = t0 + dt * step_number
         if constant_path:
-            return _moment_step_constant(system, c, t1, dt, criterion, integrator, rtol, max_iter, prop)
-        return _moment_step(system, c, t1, dt, criterion, integrator, rtol, max_iter, lu_const)
+            return _moment_step_constant(
+                system, c, t1, dt, criterion, integrator, rtol, max_iter, prop, deflection_lag
+            )
+        return _moment_step(
+            system, c, t1, dt, criterion, integrator, rtol, max_iter, lu_const, deflection_lag
+        )
 
     def record(c, infos, block_index):
         worst = _FixedPointInfo(jnp.max(infos.iterations), jnp.max(infos.residual), jnp.all(infos.converged))

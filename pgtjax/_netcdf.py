@@ -27,6 +27,7 @@ _CONTACT_FIELDS = {
     "k_e": "N/m",
     "f_0": "N",
     "contact_loss_probability": "1",
+    "cov_delta_lag": "m^2",
 }
 _TIME_FIELDS = {"iterations": "1", "residual": "1", "converged": "1"}
 

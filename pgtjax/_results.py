@@ -110,6 +110,9 @@ class MomentResult(_Labelled, _Covariance):
     observable_names: tuple[str, ...] = eqx.field(static=True, default=())
     covariance: Float64[Array, "n_times n_cov n_cov"] | None = None  # see covariance_dofs
     covariance_dofs: tuple[str, ...] = eqx.field(static=True, default=())
+    # each contact deflection's covariance with its value one step earlier (m^2; 0 at the first time), saved
+    # with solve_moments(deflection_lag=True), else None
+    cov_delta_lag: Float64[Array, "n_times n_contacts"] | None = None
 
     def contact_loss_probability(self, clearance) -> jax.Array:
         """P(|delta| < b) of each contact at each saved time under SL's Gaussian deflection, (n_times, nc), for
@@ -124,31 +127,42 @@ class MomentResult(_Labelled, _Covariance):
         b = jnp.broadcast_to(b, (nc,))
         return _gaussian_gap_probability(self.mean_delta, self.std_delta, b[None, :])
 
-    def peak_exceedance(self, quantity: str, levels, *, start: float | None = None) -> CrossingExceedance:
-        """SL's counterpart of :meth:`MonteCarloResult.peak_exceedance` for a displacement ``"u:<dof>"``:
-        the probability that its peak (largest magnitude from ``start``, s, the nearest saved time; default
-        the first) has reached each of ``levels`` (>= 0, the DOF's unit) by each saved time, from Rice's
-        crossing rate of the Gaussian response (:class:`CrossingExceedance`; rows before ``start`` are 0). It
-        needs the DOF's joint displacement-velocity covariance: solve with ``covariance_dofs`` including it.
-        The rate is integrated over the saved times (trapezoids), so save often enough to follow it: every
-        few steps, and far more often than ``std / |d mean / dt|`` where the response is nearly deterministic
-        (a deterministic displacement, std = 0, has no crossings counted). Works under ``jax.jit`` and
+    def peak_exceedance(
+        self, quantity: str, levels, *, start: float | None = None, system=None
+    ) -> CrossingExceedance:
+        """SL's counterpart of :meth:`MonteCarloResult.peak_exceedance`: the probability that a quantity's peak
+        (its largest magnitude from ``start``, s, the nearest saved time; default the first) has reached each of
+        ``levels`` (>= 0, the quantity's unit) by each saved time, from the level crossings of the Gaussian
+        response (:class:`CrossingExceedance`; rows before ``start`` are 0; docs/peaks.md). Quantities:
+
+        - ``"u:<dof>"``, a displacement: Rice's continuous-time rate, integrated over the saved times; needs the
+          DOF's joint displacement-velocity covariance (solve with ``covariance_dofs`` including it). Save every
+          few steps, and far more often than ``std / |d mean / dt|`` where the response is nearly deterministic;
+          the step must resolve the response (its velocity stands for the displacement's rate);
+        - ``"delta:<contact>"``, a contact deflection (m), and ``"force:<contact>"``, a contact force (N): the
+          probability of crossing between each pair of consecutive steps, as Monte Carlo takes the peaks (solve
+          with ``deflection_lag=True``, saved every step). ``|f| >= F`` puts the deflection outside barriers
+          that move with the contact's inputs (``b + F / k(t)`` for :class:`pgtjax.Backlash`): pass the
+          ``system`` solved (its law must implement ``deflections_at_force``).
+
+        A deterministic quantity (std 0) counts the crossings of its mean. Works under ``jax.jit`` and
         ``jax.grad`` (the levels and ``start`` are not differentiated)."""
-        from ._crossings import crossing_rate, cumulative_trapezoid, exceedance_at_start
+        from ._crossings import (
+            crossing_rate,
+            cumulative_trapezoid,
+            exceedance_at_start,
+            outside_probability,
+            step_crossings,
+        )
 
         if not isinstance(quantity, str):
-            raise ValueError(f"`quantity` must be a name 'u:<dof>', got {type(quantity).__name__}")
-        kind, _, dof = quantity.partition(":")
-        if kind != "u":
+            raise ValueError(f"`quantity` must be a name 'u:<dof>', 'delta:<contact>' or 'force:<contact>', got "
+                             f"{type(quantity).__name__}")  # fmt: skip
+        kind, _, name = quantity.partition(":")
+        if kind not in ("u", "delta", "force"):
             raise ValueError(
-                f"`quantity` must be a displacement 'u:<dof>' (its rate, the velocity, is in SL's covariance), "
-                f"got {quantity!r}"
-            )
-        i = self.dof(dof)
-        if dof not in self.covariance_dofs:
-            raise ValueError(
-                f"the peak of {quantity!r} needs its displacement-velocity covariance: solve with "
-                f"`covariance_dofs` including {dof!r} (saved: {list(self.covariance_dofs) or 'none'})"
+                "`quantity` must be a displacement 'u:<dof>', a contact deflection 'delta:<contact>' or a contact "
+                f"force 'force:<contact>', got {quantity!r}"
             )
         try:
             a = np.asarray(levels, dtype=np.float64)
@@ -156,7 +170,22 @@ class MomentResult(_Labelled, _Covariance):
             a = None
         if a is None or a.ndim != 1 or a.size == 0 or not np.all(np.isfinite(a)) or np.any(a < 0):
             raise ValueError(f"`levels` must be a 1-D array of finite levels >= 0, got {levels!r}")
+        if kind == "u":
+            i = self.dof(name)
+            if name not in self.covariance_dofs:
+                raise ValueError(
+                    f"the peak of {quantity!r} needs its displacement-velocity covariance: solve with "
+                    f"`covariance_dofs` including {name!r} (saved: {list(self.covariance_dofs) or 'none'})"
+                )
+        else:
+            i = self.contact(name)
+            if self.cov_delta_lag is None:
+                raise ValueError(
+                    f"the peak of {quantity!r} needs each step's covariance with the step before: solve with "
+                    "`deflection_lag=True` (and save_every=1)"
+                )
         times = self.times
+        n_times = times.shape[0]
         first = 0
         if start is not None:
             try:
@@ -170,12 +199,24 @@ class MomentResult(_Labelled, _Covariance):
                         f"`start` must lie within the run, [{grid[0]:g}, {grid[-1]:g}] s, got {start!r}"
                     )
             first = jnp.argmin(jnp.abs(times - t_start))
-        j = self.covariance_dofs.index(dof)
-        mean, std = self.mean_u[:, i], self.std_u[:, i]
-        rate = crossing_rate(a, mean, std, self.mean_v[:, i], self.std_v[:, i], self.cov_uv[:, j, j])
-        crossings = cumulative_trapezoid(rate, times, first)
-        at_start = exceedance_at_start(a, mean[first], std[first])[None, :]
-        counted = (jnp.arange(times.shape[0]) >= first)[:, None]
+        if kind == "u":
+            j = self.covariance_dofs.index(name)
+            mean, std = self.mean_u[:, i], self.std_u[:, i]
+            rate = crossing_rate(a, mean, std, self.mean_v[:, i], self.std_v[:, i], self.cov_uv[:, j, j])
+            crossings = cumulative_trapezoid(rate, times, first)
+            at_start = exceedance_at_start(a, mean[first], std[first])[None, :]
+        else:
+            mean, std = self.mean_delta[:, i], self.std_delta[:, i]
+            if kind == "force":
+                upper, lower = self._force_barriers(quantity, i, jnp.asarray(a), system)
+            else:
+                upper = jnp.broadcast_to(jnp.asarray(a)[None, :], (n_times, a.size))
+                lower = -upper
+            per_step = step_crossings(upper, lower, mean, std, self.cov_delta_lag[:, i])  # step j -> j + 1
+            per_step = jnp.where((jnp.arange(n_times - 1) >= first)[:, None], per_step, 0.0)
+            crossings = jnp.concatenate([jnp.zeros_like(per_step[:1]), jnp.cumsum(per_step, axis=0)])
+            at_start = outside_probability(upper[first], lower[first], mean[first], std[first])[None, :]
+        counted = (jnp.arange(n_times) >= first)[:, None]
         return CrossingExceedance(
             levels=jnp.asarray(a),
             probability=jnp.where(counted, 1.0 - (1.0 - at_start) * jnp.exp(-crossings), 0.0),
@@ -184,6 +225,34 @@ class MomentResult(_Labelled, _Covariance):
             times=times,
             start=times[first],
         )
+
+    def _force_barriers(self, quantity: str, contact: int, levels, system):
+        """The deflection barriers ``(upper, lower)`` of a contact force's levels at the saved times, (n_times, k)
+        each, from the system's contact inputs and law."""
+        if system is None or not hasattr(system, "contact_inputs"):
+            raise ValueError(
+                f"the peak of {quantity!r} needs the `system` solved: its contact inputs (the mesh stiffness) set "
+                f"the deflection at each force level; got system={system!r}"
+            )
+        if system.contact_names() != self.contact_names:
+            raise ValueError(
+                f"`system` has the contacts {list(system.contact_names())}, the result {list(self.contact_names)}: "
+                "pass the system that was solved"
+            )
+        law = system.contacts.law
+        clearance = system.contacts.clearance[contact]
+
+        def barriers(t):
+            inputs = jax.tree.map(lambda x: x[..., contact], system.contact_inputs(t))
+            return law.deflections_at_force(levels, inputs, clearance)
+
+        try:
+            return jax.vmap(barriers)(self.times)
+        except NotImplementedError:
+            raise ValueError(
+                f"the peak of {quantity!r} needs the deflections at a force level, which the contact law "
+                f"{type(law).__name__} does not give (it implements no `deflections_at_force`)"
+            ) from None
 
     @classmethod
     def from_saved(cls, system, times, saved, *, criterion, observables=None, covariance_dofs=()):
@@ -213,6 +282,7 @@ class MomentResult(_Labelled, _Covariance):
             observable_names=() if observables is None else observables.names,
             covariance=saved.covariance,
             covariance_dofs=tuple(covariance_dofs),
+            cov_delta_lag=saved.delta_lag,
         )
 
 
@@ -227,14 +297,14 @@ class TimeAverage(NamedTuple):
 
 
 class CrossingExceedance(NamedTuple):
-    """SL's estimate of the probability that a displacement's peak (largest magnitude since ``start``) has
-    reached each level by each saved time, from Rice's crossing rate (:meth:`MomentResult.peak_exceedance`;
+    """SL's estimate of the probability that a quantity's peak (largest magnitude since ``start``) has reached
+    each level by each saved time, from Rice's crossing rate (:meth:`MomentResult.peak_exceedance`;
     :mod:`pgtjax._crossings`). Rows before ``start`` are 0."""
 
-    levels: jax.Array  # (k,) in the DOF's unit
+    levels: jax.Array  # (k,) in the quantity's unit
     probability: jax.Array  # (n, k) 1 - (1 - P0) exp(-N): the crossings as a Poisson stream
     upper_bound: jax.Array  # (n, k) min(1, P0 + N): a bound, up to the error of the trapezoids
-    expected_crossings: jax.Array  # (n, k) N, the mean number of times |u| reached the level since start
+    expected_crossings: jax.Array  # (n, k) N, the mean number of times |value| reached the level since start
     times: jax.Array  # (n,) the saved times (s)
     start: jax.Array  # s, the saved time the peaks are taken from
 
@@ -540,7 +610,8 @@ def _check_loaded_shapes(fields: dict, path) -> None:
         "mean_u": "dof_names", "std_u": "dof_names", "mean_v": "dof_names", "std_v": "dof_names",
         "u": "dof_names", "v": "dof_names", "mean_delta": "contact_names", "std_delta": "contact_names",
         "force_mean": "contact_names", "force_std": "contact_names", "force": "contact_names",
-        "k_e": "contact_names", "f_0": "contact_names", "mean_obs": "observable_names",
+        "k_e": "contact_names", "f_0": "contact_names", "cov_delta_lag": "contact_names",
+        "mean_obs": "observable_names",
         "std_obs": "observable_names",
     }  # fmt: skip
     for name, labels in expected.items():

@@ -95,15 +95,56 @@ def test_sl_peak_probability_as_a_design_objective_has_the_gradient_of_a_central
         unit="1",
     )
     problem = pd.DesignProblem(space, response, peak, [], normalize=False)
-    z = jnp.array([0.3, -0.2])
+    assert_probability_gradient_matches_central_difference(problem, jnp.array([0.3, -0.2]))
+
+
+def assert_probability_gradient_matches_central_difference(problem, z, h=1e-5):
+    """The jitted value and gradient of a probability objective: a probability neither 0 nor 1, and each
+    component of the gradient non-zero and equal to a central difference of the (unjitted) value."""
     value, grad = jax.jit(jax.value_and_grad(problem.value))(z)
     assert 0.05 < float(value) < 0.95 and grad.dtype == jnp.float64
-    h = 1e-5
-    for i in range(2):
-        e = jnp.zeros(2).at[i].set(h)
+    for i in range(z.shape[0]):
+        e = jnp.zeros(z.shape[0]).at[i].set(h)
         fd = (problem.value(z + e) - problem.value(z - e)) / (2 * h)
         np.testing.assert_allclose(float(grad[i]), float(fd), rtol=1e-6)
-    assert float(grad[0]) != 0.0 and float(grad[1]) != 0.0
+        assert float(grad[i]) != 0.0
+
+
+class MeshDesign(eqx.Module):
+    stiffness: jax.Array  # N/m, the mean mesh stiffness
+    damping: jax.Array  # N s/m
+
+
+def mesh_system(p):
+    """A 1 kg oscillator held by a contact whose stiffness varies by +-40 % at 7 Hz (no clearance)."""
+    k = pg.FourierSeries(p.stiffness, sin_coefficients=[0.4 * p.stiffness], frequency=2 * np.pi * 7.0)
+    return pg.System([[1.0]], [[0.0]], damping=[[p.damping]], noise_input=[[1.0]], spectral_density=1.0,
+                     contacts=pg.Contacts([[1.0]], k, [0.0], names=["mesh"]))  # fmt: skip
+
+
+def test_sl_force_peak_probability_as_a_design_objective_has_the_gradient_of_a_central_difference():
+    """``Response(deflection_lag=True)`` keeps what SL's peak estimate of a contact force reads, so a
+    ``Custom`` objective on ``result.peak_exceedance("force:mesh", ..., system=system)`` (the probability that
+    the mesh force's peak from 0.3 s on has reached 80 N, about 3 std, by 0.6 s) runs in the compiled design
+    problem, with the gradient of a central difference in the variables (the mesh stiffness and the damping)."""
+    space = pd.DesignSpace(
+        MeshDesign(jnp.asarray(4000.0), jnp.asarray(30.0)),
+        [pd.Variable("stiffness", 1000.0, 1e4), pd.Variable("damping", 5.0, 100.0)],
+    )
+    response = pd.Response(build=mesh_system, dt=1e-3, n_steps=600, static_start=False, deflection_lag=True)
+    peak = pd.Custom(
+        fn=lambda result, system: result.peak_exceedance(
+            "force:mesh", [80.0], start=0.3, system=system
+        ).probability[-1, 0],
+        label="P(peak |f| >= 80 N)",
+        unit="1",
+    )
+    problem = pd.DesignProblem(space, response, peak, [], normalize=False)
+    assert_probability_gradient_matches_central_difference(problem, jnp.array([0.1, -0.1]))
+    with pytest.raises(ValueError, match="Response `deflection_lag` must be True or False"):
+        pd.Response(build=mesh_system, dt=1e-3, n_steps=600, deflection_lag="yes")
+    with pytest.raises(ValueError, match="Response `deflection_lag` needs save_every = 1, got 2"):
+        pd.Response(build=mesh_system, dt=1e-3, n_steps=600, save_every=2, deflection_lag=True)
 
 
 def test_grouped_checkpoints_leave_the_objective_and_its_gradient_unchanged():

@@ -39,7 +39,9 @@ class Response(eqx.Module):
     state once per ``checkpoint_blocks`` saved blocks (``solve_moments``'s option: less memory for long runs of
     large models, for 0.6 to 1.5 forward runs more per gradient, measured); ``covariance_dofs``: DOF names (or
     ``"all"``) whose joint covariance SL keeps, for objectives that read it (e.g. a :class:`Custom` one with
-    ``result.peak_exceedance``, SL's peak probability of a displacement)."""
+    ``result.peak_exceedance``, SL's peak probability of a displacement); ``deflection_lag``: SL also keeps
+    each contact deflection's covariance with the step before (needs ``save_every = 1``), for SL's peak
+    probability of a contact deflection or force."""
 
     build: Callable = eqx.field(static=True)
     dt: float = eqx.field(static=True)
@@ -54,11 +56,16 @@ class Response(eqx.Module):
     covariance_dofs: tuple[str, ...] | str | None = eqx.field(
         static=True, default=None, converter=lambda d: d if d is None or isinstance(d, str) else tuple(d)
     )
+    deflection_lag: bool = eqx.field(static=True, default=False)
 
     def __check_init__(self):
         if not callable(self.build):
             raise ValueError(f"Response `build` must be a function params -> System, got {self.build!r}")
         n_steps, save_every = validate_time_grid(self.dt, self.n_steps, self.save_every)
+        if not isinstance(self.deflection_lag, bool):
+            raise ValueError(f"Response `deflection_lag` must be True or False, got {self.deflection_lag!r}")
+        if self.deflection_lag and save_every != 1:
+            raise ValueError(f"Response `deflection_lag` needs save_every = 1, got {save_every}")
         check_count(
             "Response.checkpoint_blocks", self.checkpoint_blocks, 1, n_steps // save_every, " (saved blocks)"
         )
@@ -88,6 +95,8 @@ class Response(eqx.Module):
             # a run saved at another interval reports (not differentiated): its blocks are kept one by one
             checkpoint_blocks=self.checkpoint_blocks if every == self.save_every else 1,
             covariance_dofs=self.covariance_dofs,
+            # a report at another interval (not differentiated) goes without: it pairs consecutive steps
+            deflection_lag=self.deflection_lag and every == 1,
         )
         return system, result
 
