@@ -31,7 +31,7 @@ EXPECTED_FIGURES = {
     "back_to_back": 2,  # run-up stiffness/TE/acceleration panels, STFT
     "design": 6,  # bolt elasticities, convergence, bolt stiffnesses, SL/MC response, Pareto front, scaling sweep
     "gear_pair": 7,  # three regimes x (moments against time, PDF of the mesh deflection), peak mesh forces
-    "planetary": 6,  # DOFs, appendix DOFs, contact point, meshing forces, their zoom, rim-thickness sweep
+    "planetary": 7,  # DOFs, appendix DOFs, contact point, meshing forces, their zoom, peak forces, rim sweep
     "ring": 4,  # mode shapes, contact-point and mid-node responses, speed sweep
 }
 
