@@ -73,9 +73,13 @@ def outside_probability(upper, lower, mean, std):
     std = 0, whether the mean lies outside."""
     random = std > 0.0
     s_safe = jnp.where(random, std, 1.0)
-    gaussian = ndtr((mean - upper) / s_safe) + ndtr((lower - mean) / s_safe)
-    outside = (mean >= upper) | (mean <= lower)
-    return jnp.where(random, gaussian, outside.astype(jnp.result_type(upper, float)))
+    # a barrier at infinity is never reached; kept finite inside, so that no inf meets a derivative
+    finite_upper, finite_lower = jnp.isfinite(upper), jnp.isfinite(lower)
+    upper_safe, lower_safe = jnp.where(finite_upper, upper, mean), jnp.where(finite_lower, lower, mean)
+    above = jnp.where(finite_upper, ndtr((mean - upper_safe) / s_safe), 0.0)
+    below = jnp.where(finite_lower, ndtr((lower_safe - mean) / s_safe), 0.0)
+    outside = (finite_upper & (mean >= upper_safe)) | (finite_lower & (mean <= lower_safe))
+    return jnp.where(random, above + below, outside.astype(jnp.result_type(upper, float)))
 
 
 # Gauss-Legendre nodes on (0, 1) for _correlation_tail; the substitution s = sqrt(1 - rho) u^3 gathers them where
@@ -127,7 +131,8 @@ def step_crossings(upper, lower, mean, std, lag_covariance):
     steps: up through ``upper`` or down through ``lower`` (each (n, k), barriers that may move from step to
     step), from X's mean and std at each step and the covariance of each step with the one before
     (``lag_covariance``, (n,); the first unused). Returns (n - 1, k), row j for the step from j to j + 1. A
-    deterministic step (std 0) enters through its value."""
+    deterministic step (std 0) enters through its value. An up-crossing counts every X0 below ``upper``, those
+    below ``lower`` too (a jump across the band: conservative, and negligible at the levels of interest)."""
     m, s, lag = (jnp.asarray(x) for x in (mean, std, lag_covariance))
     s0, s1 = s[:-1, None], s[1:, None]
     m0, m1 = m[:-1, None], m[1:, None]

@@ -416,12 +416,11 @@ class _Saved(NamedTuple):
     delta_lag: jax.Array | None  # (nc,) each deflection's covariance with its value one step earlier
 
 
-def _deflection_lag(g0, g1, cov, c_mat) -> jax.Array:
+def _deflection_lag(g0, g1, cross) -> jax.Array:
     """Covariance of each contact deflection at a step's end with its value at the step's start, (nc,):
-    ``g1^T Cov(u1, u0) g0`` with ``Cov(u1, x0) = X_u P = P[:n] + dX P`` (the noise of the step is independent
-    of the start). ``c_mat`` = dX P (n, 2n); ``g0``, ``g1`` the directions at the two ends (n, nc)."""
-    n = g0.shape[0]
-    return jnp.sum(g1 * ((cov[:n, :n] + c_mat[:, :n]) @ g0), axis=0)
+    ``g1^T Cov(u1, u0) g0``; ``cross`` = Cov(u1, u0) = (X_u P)[:, :n] = P_uu + (dX P)[:, :n] (n, n) (the
+    step's noise is independent of its start); ``g0``, ``g1`` the directions at the two ends (n, nc)."""
+    return jnp.sum(g1 * (cross @ g0), axis=0)
 
 
 def _record(system, carry: _Carry, info: _FixedPointInfo, t, observables, cov_index=()) -> _Saved:
@@ -527,18 +526,20 @@ def _moment_step(
         eye_v = jnp.eye(n, 2 * n, k=n, dtype=mean.dtype)
         phi = jnp.concatenate([dx_u + eye_u, (2.0 / h) * dx_u - eye_v], axis=0)
         gamma = jnp.concatenate([g_u, g_v], axis=0)
-        new_cov = phi @ cov @ phi.T + gamma @ gamma.T
+        phi_cov = phi @ cov
+        new_cov = phi_cov @ phi.T + gamma @ gamma.T
         new_cov = 0.5 * (new_cov + new_cov.T)
-        c_mat = dx_u @ cov if with_lag else None
+        cross = phi_cov[:n, :n]  # Cov(u1, u0)
     else:
         z_mat = rhs_increment @ cov  # [E - K_eff, D] P, (n, 2n)
         c_mat = solve(z_mat)  # dX P
         d_cov = solve(solve((z_mat @ rhs_increment.T).T).T)  # dX P dX^T
         new_cov = _assemble_covariance(cov, d_cov, c_mat, g_u, g_v, h)
+        cross = cov[:n, :n] + c_mat[:, :n]  # Cov(u1, u0)
     new_mean = jnp.concatenate([u_mean, (2.0 / h) * (u_mean - mean[:n]) - mean[n:]])
     lag = None
     if with_lag:
-        lag = _deflection_lag(s0.direction, s1.direction, cov, c_mat) if nc else jnp.zeros((0,))
+        lag = _deflection_lag(s0.direction, s1.direction, cross) if nc else jnp.zeros((0,))
     return _Carry(new_mean, new_cov, s1, z1, lin1, lag), info
 
 
@@ -689,7 +690,8 @@ def _moment_step_constant(
     new_mean = jnp.concatenate([u_mean, (2.0 / h) * (u_mean - mean[:n]) - mean[n:]])
     lag = None
     if with_lag:
-        lag = _deflection_lag(s0.direction, s1.direction, cov, c_mat) if nc else jnp.zeros((0,))
+        cross = cov[:n, :n] + c_mat[:, :n]  # Cov(u1, u0)
+        lag = _deflection_lag(s0.direction, s1.direction, cross) if nc else jnp.zeros((0,))
     return _Carry(new_mean, new_cov, s1, z1, lin1, lag), info
 
 

@@ -143,7 +143,9 @@ class MomentResult(_Labelled, _Covariance):
           probability of crossing between each pair of consecutive steps, as Monte Carlo takes the peaks (solve
           with ``deflection_lag=True``, saved every step). ``|f| >= F`` puts the deflection outside barriers
           that move with the contact's inputs (``b + F / k(t)`` for :class:`pgtjax.Backlash`): pass the
-          ``system`` solved (its law must implement ``deflections_at_force``).
+          ``system`` solved (its law must implement ``deflections_at_force``; only its contact names and count
+          of DOFs are checked against the result, so pass the very system, with the stiffness it was solved
+          with).
 
         A deterministic quantity (std 0) counts the crossings of its mean. Works under ``jax.jit`` and
         ``jax.grad`` (the levels and ``start`` are not differentiated)."""
@@ -216,6 +218,10 @@ class MomentResult(_Labelled, _Covariance):
             per_step = jnp.where((jnp.arange(n_times - 1) >= first)[:, None], per_step, 0.0)
             crossings = jnp.concatenate([jnp.zeros_like(per_step[:1]), jnp.cumsum(per_step, axis=0)])
             at_start = outside_probability(upper[first], lower[first], mean[first], std[first])[None, :]
+            if (
+                kind == "force"
+            ):  # |f| >= 0 always: a level of 0 N is reached at the start, whatever the clearance
+                at_start = jnp.where(jnp.asarray(a)[None, :] == 0.0, 1.0, at_start)
         counted = (jnp.arange(n_times) >= first)[:, None]
         return CrossingExceedance(
             levels=jnp.asarray(a),
@@ -234,10 +240,10 @@ class MomentResult(_Labelled, _Covariance):
                 f"the peak of {quantity!r} needs the `system` solved: its contact inputs (the mesh stiffness) set "
                 f"the deflection at each force level; got system={system!r}"
             )
-        if system.contact_names() != self.contact_names:
+        if system.contact_names() != self.contact_names or system.dof_names != self.dof_names:
             raise ValueError(
-                f"`system` has the contacts {list(system.contact_names())}, the result {list(self.contact_names)}: "
-                "pass the system that was solved"
+                f"`system` has the contacts {list(system.contact_names())} and {system.n_dof} DOFs, the result "
+                f"{list(self.contact_names)} and {len(self.dof_names)}: pass the system that was solved"
             )
         law = system.contacts.law
         clearance = system.contacts.clearance[contact]
@@ -298,12 +304,13 @@ class TimeAverage(NamedTuple):
 
 class CrossingExceedance(NamedTuple):
     """SL's estimate of the probability that a quantity's peak (largest magnitude since ``start``) has reached
-    each level by each saved time, from Rice's crossing rate (:meth:`MomentResult.peak_exceedance`;
-    :mod:`pgtjax._crossings`). Rows before ``start`` are 0."""
+    each level by each saved time, from the level crossings of the Gaussian response: Rice's rate for a
+    displacement, crossings between consecutive steps for a contact quantity
+    (:meth:`MomentResult.peak_exceedance`; :mod:`pgtjax._crossings`). Rows before ``start`` are 0."""
 
     levels: jax.Array  # (k,) in the quantity's unit
     probability: jax.Array  # (n, k) 1 - (1 - P0) exp(-N): the crossings as a Poisson stream
-    upper_bound: jax.Array  # (n, k) min(1, P0 + N): a bound, up to the error of the trapezoids
+    upper_bound: jax.Array  # (n, k) min(1, P0 + N): a bound (Rice's: up to the trapezoids' error)
     expected_crossings: jax.Array  # (n, k) N, the mean number of times |value| reached the level since start
     times: jax.Array  # (n,) the saved times (s)
     start: jax.Array  # s, the saved time the peaks are taken from
@@ -325,7 +332,8 @@ class PeakExceedance(NamedTuple):
 def every_nth_save(result: MomentResult, n: int) -> MomentResult:
     """``result`` at every ``n``-th saved time (first included). The per-block solver diagnostics
     (``iterations``, ``residual``, ``converged``) are reduced over the ``n`` blocks merged into each, so that
-    a step that did not converge is not dropped with its block."""
+    a step that did not converge is not dropped with its block; ``cov_delta_lag`` (a covariance with the step
+    before) is dropped for n > 1."""
     if (len(result.times) - 1) % n:
         raise ValueError(f"{len(result.times) - 1} saved blocks cannot be merged by {n}")
     out = jax.tree.map(lambda a: a[::n], result)
@@ -333,7 +341,7 @@ def every_nth_save(result: MomentResult, n: int) -> MomentResult:
     def merged(a, reduce):
         return jnp.concatenate([a[:1], reduce(a[1:].reshape(-1, n, *a.shape[1:]), axis=1)])
 
-    return eqx.tree_at(
+    out = eqx.tree_at(
         lambda r: (r.iterations, r.residual, r.converged),
         out,
         (
@@ -342,6 +350,9 @@ def every_nth_save(result: MomentResult, n: int) -> MomentResult:
             merged(result.converged, jnp.all),
         ),
     )
+    if n > 1 and result.cov_delta_lag is not None:  # a lag of one step no longer pairs the kept times
+        out = eqx.tree_at(lambda r: r.cov_delta_lag, out, None, is_leaf=lambda x: x is None)
+    return out
 
 
 def _gaussian_gap_probability(mean, std, clearance):

@@ -213,42 +213,68 @@ def test_step_crossing_probability_equals_the_closed_form_with_owens_t():
                                    atol=1e-300)  # fmt: skip
 
 
-def test_deflection_lag_is_the_covariance_with_the_step_before():
-    """cov_delta_lag from solve_moments(deflection_lag=True) against g(t1)^T Phi P0 g(t0), with SL's full
-    covariance P0 at the step's start and the one-step map Phi of the linear system taken column by column
-    from deterministic one-step runs of pg.simulate (unit initial states, minus the run from rest). Two DOFs,
-    two contacts without clearance (linear) along directions that turn with time."""
+def turning_pair():
+    """Two DOFs, two contacts without clearance (linear) along directions that turn with time."""
     w = 2 * np.pi * 3.0
 
     def direction(t):
         return jnp.array([[1.0 + 0.3 * jnp.sin(w * t), 1.0], [0.5 * jnp.cos(w * t), -1.0]])
 
-    system = pg.System(
+    return pg.System(
         mass=np.diag([1.0, 2.0]), stiffness=[[300.0, -50.0], [-50.0, 400.0]], damping=[[3.0, 0.0], [0.0, 2.0]],
         load=[5.0, 0.0], noise_input=[[1.0], [0.5]], spectral_density=1.0, dof_names=["x", "y"],
         contacts=pg.Contacts(direction, [2000.0, 500.0], [0.0, 0.0], names=["a", "b"]),
     )  # fmt: skip
-    dt = 1e-3
-    sl = pg.solve_moments(system, dt=dt, n_steps=60, covariance_dofs="all", deflection_lag=True)
-    assert sl.cov_delta_lag.shape == (61, 2) and sl.cov_delta_lag.dtype == jnp.float64
+
+
+def chain_of_18(varying_stiffness: bool):
+    """18 masses in a chain, two contacts without clearance; constant K and C take the step path with the
+    contact-free map formed once (n > 16), a time-varying K the path with a Woodbury correction per step."""
+    n = 18
+    k = 400.0 * (2 * np.eye(n) - np.eye(n, k=1) - np.eye(n, k=-1))
+    stiffness = (lambda t: k * (1.0 + 0.2 * jnp.sin(2 * np.pi * 5.0 * t))) if varying_stiffness else k
+    g = np.zeros((n, 2))
+    g[3, 0], g[10, 0], g[15, 1] = 1.0, -1.0, 1.0
+    return pg.System(mass=np.eye(n), stiffness=stiffness, damping=0.5 * np.eye(n) + 1e-3 * k, load=np.ones(n),
+                     noise_input=np.eye(n)[:, :2], spectral_density=1.0,
+                     contacts=pg.Contacts(g, [1000.0, 800.0], [0.0, 0.0], names=["a", "b"]))  # fmt: skip
+
+
+@pytest.mark.parametrize("which", ["turning pair", "chain", "chain, varying K"])
+def test_deflection_lag_is_the_covariance_with_the_step_before(which):
+    """cov_delta_lag from solve_moments(deflection_lag=True) against g(t1)^T Phi P0 g(t0), with SL's full
+    covariance P0 at the step's start and the one-step map Phi of the linear system taken column by column
+    from deterministic one-step runs of pg.simulate (unit initial states, minus the run from rest); for each of
+    the three step paths (a small system's dense map, the contact-free map formed once, a Woodbury correction
+    per step). every_nth_save drops the lag (it no longer pairs the kept times)."""
+    from pgtjax._results import every_nth_save
+
+    system = {"turning pair": turning_pair, "chain": lambda: chain_of_18(False),
+              "chain, varying K": lambda: chain_of_18(True)}[which]()  # fmt: skip
+    n, dt = system.n_dof, 1e-3
+    sl = pg.solve_moments(system, dt=dt, n_steps=30, covariance_dofs="all", deflection_lag=True)
+    assert sl.cov_delta_lag.shape == (31, 2) and sl.cov_delta_lag.dtype == jnp.float64
     np.testing.assert_array_equal(np.asarray(sl.cov_delta_lag[0]), 0.0)
-    for k in (1, 17, 60):
+    for k in (1, 30):
         t0 = float(sl.times[k - 1])
 
         def one_step(x):
             run = pg.simulate(
-                system, t0=t0, dt=dt, n_steps=1, initial_displacement=x[:2], initial_velocity=x[2:]
+                system, t0=t0, dt=dt, n_steps=1, initial_displacement=x[:n], initial_velocity=x[n:]
             )
             return np.concatenate([np.asarray(run.u[-1]), np.asarray(run.v[-1])])
 
-        rest = one_step(np.zeros(4))
-        phi = np.stack([one_step(e) - rest for e in np.eye(4)], axis=1)
-        lag = (phi @ np.asarray(sl.covariance[k - 1]))[:2, :2]  # Cov(u1, u0)
-        want = np.sum(np.asarray(direction(t0 + dt)) * (lag @ np.asarray(direction(t0))), axis=0)
-        np.testing.assert_allclose(np.asarray(sl.cov_delta_lag[k]), want, rtol=1e-8)
-    plain = pg.solve_moments(system, dt=dt, n_steps=60)
+        rest = one_step(np.zeros(2 * n))
+        phi = np.stack([one_step(e) - rest for e in np.eye(2 * n)], axis=1)
+        lag = (phi @ np.asarray(sl.covariance[k - 1]))[:n, :n]  # Cov(u1, u0)
+        g0, g1 = (np.asarray(system.contact_direction(t)) for t in (t0, t0 + dt))
+        np.testing.assert_allclose(
+            np.asarray(sl.cov_delta_lag[k]), np.sum(g1 * (lag @ g0), axis=0), rtol=1e-8
+        )
+    plain = pg.solve_moments(system, dt=dt, n_steps=30)
     assert plain.cov_delta_lag is None
     np.testing.assert_array_equal(np.asarray(plain.std_u), np.asarray(sl.std_u))  # the run itself unchanged
+    assert every_nth_save(sl, 2).cov_delta_lag is None and every_nth_save(sl, 1).cov_delta_lag is not None
 
 
 @pytest.mark.parametrize("dt", [1e-3, 0.05])
@@ -303,22 +329,27 @@ def test_sl_contact_peaks_under_a_varying_mesh_stiffness_match_monte_carlo(dt):
 def test_sl_force_peak_probability_has_the_gradient_of_a_central_difference():
     """d P(peak force >= F) / d log(mean mesh stiffness), through SL, the step covariances and the moving
     barriers, against a central difference (tests/test_design.py runs the same estimate jitted, as a design
-    objective)."""
-    plain = pg.solve_moments(mesh_oscillator(), dt=1e-3, n_steps=400)
-    level = 3.0 * float(jnp.max(plain.force_std[200:, 0]))
+    objective). The stiffness k0 (1 - cos 2 pi 7 t) is 0 at the start, where the barrier b + F / k is at
+    infinity: the gradient stays finite, and a level of 0 N is reached at once (|f| >= 0)."""
 
-    def probability(log_k):
-        stiffness = pg.FourierSeries(jnp.exp(log_k), sin_coefficients=[0.4 * jnp.exp(log_k)],
+    def solve(log_k):
+        stiffness = pg.FourierSeries(jnp.exp(log_k), cos_coefficients=[-jnp.exp(log_k)],
                                      frequency=2 * np.pi * 7.0)  # fmt: skip
         system = eqx.tree_at(lambda s: s.contacts.inputs, mesh_oscillator(), stiffness)
-        sl = pg.solve_moments(system, dt=1e-3, n_steps=400, deflection_lag=True)
-        return sl.peak_exceedance("force:c", [level], start=0.2, system=system).probability[-1, 0]
+        return system, pg.solve_moments(system, dt=1e-3, n_steps=300, deflection_lag=True)
 
     x, h = np.log(OMEGA**2), 1e-5
-    grad = float(jax.grad(probability)(x))
-    fd = float((probability(x + h) - probability(x - h)) / (2 * h))
-    assert 0.01 < float(probability(x)) < 0.99 and abs(grad) > 1e-3
-    np.testing.assert_allclose(grad, fd, rtol=1e-5)
+    level = 2.5 * float(jnp.max(solve(x)[1].force_std[150:, 0]))
+
+    def probability(log_k):
+        system, sl = solve(log_k)
+        p = sl.peak_exceedance("force:c", [level, 0.0], system=system).probability[-1]
+        return p[0], p[1]
+
+    (value, at_zero), grad = jax.value_and_grad(probability, has_aux=True)(x)
+    fd = (probability(x + h)[0] - probability(x - h)[0]) / (2 * h)
+    assert 0.01 < float(value) < 0.99 and abs(float(grad)) > 1e-3 and float(at_zero) == 1.0
+    np.testing.assert_allclose(float(grad), float(fd), rtol=1e-5)
 
 
 def test_sl_contact_peaks_refuse_what_they_cannot_estimate():

@@ -533,6 +533,9 @@ def test_study_grids_outputs_and_symmetry_zero_dofs(tmp_path):
         entry = peaks["per_mesh"][name]
         assert entry["beyond_top_edge_fraction"] == 0.0 and entry["q99_N"] is None  # 200 samples: 2 beyond
         assert end[k] <= entry["median_N"] <= entry["q90_N"] <= entry["top_edge_N"]
+        # SL's estimate of reaching each stated quantile: a probability, falling with the level
+        reach = entry["sl_reach_probability"]
+        assert reach["q99"] is None and 0.0 <= reach["q90"] <= reach["median"] <= 1.0
     thin = full["rim_thickness"]["variants"]["t_r = 100 mm"]["ring_node2_tangential"]
     assert thin["unit"] == "m" and thin["min_mean"] <= thin["time_average_of_mean"] <= thin["max_mean"]
     derivative = full["sensitivities"]["quantities"][1]["derivatives"][1]

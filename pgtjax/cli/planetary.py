@@ -92,8 +92,9 @@ def _add_planetary_options(p: argparse.ArgumentParser, quick: bool) -> None:
         metavar="BINS",
         help="Monte Carlo also counts every meshing force's peak (its largest magnitude over every step "
         "since the start) in BINS bins from 0 N to SL's largest |mean| + 8 std: "
-        "planetary_peak_forces.png draws the probability that the peak has reached each level, and "
-        "peak_meshing_forces in summary.json gives its quantiles (default 0: off)",
+        "planetary_peak_forces.png draws the probability that the peak has reached each level, with SL's "
+        "estimate (an SL run saved every step), and peak_meshing_forces in summary.json gives its quantiles "
+        "(default 0: off)",
     )
     p.add_argument(
         "--chunk-size",

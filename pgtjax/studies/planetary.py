@@ -47,6 +47,8 @@ class PlanetaryStudy:
     dt: float
     carrier_period: float
     settings: dict
+    # with peak_force_bins: SL's estimate of each meshing force's peak (sl_peak_estimates), else None
+    sl_peaks: dict | None = None
 
     def sl_result(self, criterion: str | None = None) -> MomentResult:
         """The SL result of ``criterion`` (default: the first criterion run)."""
@@ -193,6 +195,9 @@ def run_study(
             histogram_times=histogram_times,
             **kw,
         )
+    sl_peaks = None
+    if peak_force_bins:
+        sl_peaks = sl_peak_estimates(system, kw, criteria[0], mc)
     settings = dict(
         n_samples=n_samples,
         periods=periods,
@@ -204,7 +209,27 @@ def run_study(
         sl_refine=mc_every // sl_every,
         peak_force_bins=peak_force_bins,
     )
-    return PlanetaryStudy(p, sl, mc, dt, carrier_period(p), settings)
+    return PlanetaryStudy(p, sl, mc, dt, carrier_period(p), settings, sl_peaks)
+
+
+def sl_peak_estimates(system, kw: dict, criterion: str, mc: MonteCarloResult) -> dict:
+    """SL's estimate of each meshing force's peak at the Monte Carlo's peak levels (the bins' upper edges) and
+    histogram times: ``{quantity: {"levels", "probability", "upper_bound"}}`` (arrays (n_bins,) and
+    (n_hist, n_bins)), from a run saved every step with ``deflection_lag`` (crossings between steps;
+    :meth:`pgtjax.MomentResult.peak_exceedance`)."""
+    run = {k: v for k, v in kw.items() if k != "observables"}  # only the meshes are needed, at every step
+    sl = solve_moments(system, criterion=criterion, save_every=1, deflection_lag=True, **run)
+    rows = np.argmin(np.abs(np.asarray(sl.times)[None, :] - np.asarray(mc.histogram_times)[:, None]), axis=1)
+    out = {}
+    for quantity, edges in mc.peak_edges.items():
+        levels = np.maximum(np.asarray(edges)[1:], 0.0)
+        estimate = sl.peak_exceedance(quantity, levels, system=system)
+        out[quantity] = dict(
+            levels=levels,
+            probability=np.asarray(estimate.probability)[rows],
+            upper_bound=np.asarray(estimate.upper_bound)[rows],
+        )
+    return out
 
 
 #: the peak histograms' range, from 0 N to SL's largest |mean| + PEAK_FORCE_STDS std of each meshing force
@@ -249,12 +274,23 @@ def peak_force_summary(study: PlanetaryStudy) -> dict | None:
             reached = np.nonzero(cumulative >= needed)[0]
             enough = mc.n_samples - needed >= 10
             entry[f"{label}_N"] = float(edges[reached[0] + 1]) if enough and reached.size else None
+        if (
+            getattr(study, "sl_peaks", None) is not None
+        ):  # SL's probability of reaching each quantile (ideally 1 - q)
+            estimate = study.sl_peaks[quantity]
+            entry["sl_reach_probability"] = {
+                label: None if entry[f"{label}_N"] is None
+                else float(estimate["probability"][-1][np.argmin(np.abs(estimate["levels"] - entry[f"{label}_N"]))])
+                for label in levels
+            }  # fmt: skip
         per_mesh[quantity.split(":", 1)[1]] = entry
     return dict(
         note="peak (largest magnitude) of each meshing force of each sample over every step from t = 0 "
         "to the end of the run; each quantile is the upper edge of the bin where the Monte Carlo's cumulative "
         "count reaches it, so within one bin width above it (null where fewer than 10 samples lie beyond it, "
-        "or where it lies beyond the top edge)",
+        "or where it lies beyond the top edge); sl_reach_probability: SL's estimate of the probability "
+        "that the peak reaches each quantile stated (1 - the quantile if SL and Monte Carlo agreed; SL counts "
+        "the crossings between steps as independent, so it is above that where they come in clumps)",
         time_s=float(mc.histogram_times[-1]),
         n_samples=mc.n_samples,
         per_mesh=per_mesh,
@@ -299,15 +335,26 @@ def peak_force_figure(study: PlanetaryStudy):
                 label = f"{', '.join(names)}{' (the same counts)' if len(names) > 1 else ''}, by t = {times[row]:.3g} s"
                 ax.semilogy(levels[keep] / 1e3, p[keep], style, color=f"C{k}", label=label)
                 certain.append(np.concatenate([[0.0], levels[p >= 1.0]])[-1] / 1e3)
+            if study.sl_peaks is not None:  # SL's estimate by the end, thin and dotted
+                estimate = study.sl_peaks[quantity]
+                p = estimate["probability"][-1]
+                keep = p >= 1.0 / mc.n_samples
+                ax.semilogy(estimate["levels"][keep] / 1e3, p[keep], ":", color=f"C{k}", lw=1.5,
+                            label=f"{', '.join(names)}, SL's estimate by t = {times[-1]:.3g} s")  # fmt: skip
         ax.set_xlim(left=max(0.9 * min(certain), 0.0))
         ax.set_title(title)
         ax.set_xlabel("meshing force level (kN)")
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=7)
     axes[0].set_ylabel("probability that the peak has reached the level")
+    sl_note = (
+        "\nSL's estimate (dotted): crossings between steps counted as independent, conservative where they clump"
+        if study.sl_peaks
+        else ""
+    )
     fig.suptitle(
         f"Peak meshing forces (largest magnitude over every step since t = 0): Monte Carlo, "
-        f"{mc.n_samples:,} samples (smallest probability shown {1 / mc.n_samples:.1g})"
+        f"{mc.n_samples:,} samples (smallest probability shown {1 / mc.n_samples:.1g}){sl_note}"
     )
     return fig
 
