@@ -141,9 +141,11 @@ def step_crossings(upper, lower, mean, std, lag_covariance):
     rho = jnp.where(random0 & random1, lag[1:, None] / (safe0 * safe1), 0.0)
 
     def up(barrier0, barrier1, sign):
-        # a barrier at infinity (a force level of a contact without stiffness) is never crossed
-        reachable = jnp.isfinite(barrier0) & jnp.isfinite(barrier1)
-        barrier0, barrier1 = jnp.where(reachable, barrier0, m0), jnp.where(reachable, barrier1, m1)
+        # a barrier at infinity (a force level of a contact without stiffness) is never reached: none is
+        # crossed at the step's end, and every value lies inside it at the start (kept finite inside, so that
+        # no inf meets a derivative)
+        finite0, finite1 = jnp.isfinite(barrier0), jnp.isfinite(barrier1)
+        barrier0, barrier1 = jnp.where(finite0, barrier0, m0), jnp.where(finite1, barrier1, m1)
         # the levels standardized (sign -1: the lower barrier, as an upper one of -X)
         a = sign * (barrier0 - m0) / safe0
         b = sign * (barrier1 - m1) / safe1
@@ -151,12 +153,11 @@ def step_crossings(upper, lower, mean, std, lag_covariance):
         # a deterministic step: its side of the barrier is known
         inside0 = (sign * (m0 - barrier0) < 0.0).astype(a.dtype)
         outside1 = (sign * (m1 - barrier1) >= 0.0).astype(a.dtype)
-        crossing = jnp.where(
-            random0,
-            jnp.where(random1, both, ndtr(a) * outside1),
-            jnp.where(random1, inside0 * ndtr(-b), inside0 * outside1),
-        )
-        return jnp.where(reachable, crossing, 0.0)
+        below0 = jnp.where(random0, ndtr(a), inside0)  # P(X0 inside), for a step 1 known
+        above1 = jnp.where(random1, ndtr(-b), outside1)  # P(X1 outside), for a step 0 certainly inside
+        crossing = jnp.where(random0 & random1, both, below0 * above1)
+        crossing = jnp.where(finite0, crossing, above1)
+        return jnp.where(finite1, crossing, 0.0)
 
     return up(upper[:-1], upper[1:], 1.0) + up(lower[:-1], lower[1:], -1.0)
 

@@ -213,6 +213,31 @@ def test_step_crossing_probability_equals_the_closed_form_with_owens_t():
                                    atol=1e-300)  # fmt: skip
 
 
+def test_step_crossings_of_known_steps_and_barriers_at_infinity():
+    """step_crossings' limits in closed form: a barrier that comes down from infinity (a contact gaining
+    stiffness) is crossed with the probability of being beyond it after the step, one that goes to infinity is
+    not crossed; a deterministic value that passes a level crosses it with probability 1; a random step
+    followed by a known one crosses with the probability of having been inside."""
+    from scipy.special import ndtr
+
+    from pgtjax._crossings import step_crossings
+
+    inf = np.inf
+    lag = np.array([0.0, 0.5, 0.0])
+    upper = np.array([[inf], [2.0], [inf]])
+    got = np.asarray(step_crossings(upper, np.full((3, 1), -inf), np.zeros(3), np.ones(3), lag))
+    np.testing.assert_allclose(got[:, 0], [ndtr(-2.0), 0.0], rtol=1e-14)
+    lower = np.array([[-inf], [-2.0], [-2.0]])
+    got = np.asarray(step_crossings(np.full((3, 1), inf), lower, np.zeros(3), np.ones(3), lag))
+    np.testing.assert_allclose(got[0, 0], ndtr(-2.0), rtol=1e-14)
+    known = np.asarray(step_crossings(np.full((3, 1), 2.0), np.full((3, 1), -2.0), np.array([1.0, 3.0, 1.0]),
+                                      np.zeros(3), np.zeros(3)))  # fmt: skip
+    np.testing.assert_array_equal(known[:, 0], [1.0, 0.0])
+    then_known = np.asarray(step_crossings(np.full((2, 1), 2.0), np.full((2, 1), -2.0), np.array([0.0, 3.0]),
+                                           np.array([1.0, 0.0]), np.zeros(2)))  # fmt: skip
+    np.testing.assert_allclose(then_known[0, 0], ndtr(2.0), rtol=1e-14)
+
+
 def turning_pair():
     """Two DOFs, two contacts without clearance (linear) along directions that turn with time."""
     w = 2 * np.pi * 3.0
