@@ -218,9 +218,8 @@ class MomentResult(_Labelled, _Covariance):
             per_step = jnp.where((jnp.arange(n_times - 1) >= first)[:, None], per_step, 0.0)
             crossings = jnp.concatenate([jnp.zeros_like(per_step[:1]), jnp.cumsum(per_step, axis=0)])
             at_start = outside_probability(upper[first], lower[first], mean[first], std[first])[None, :]
-            if (
-                kind == "force"
-            ):  # |f| >= 0 always: a level of 0 N is reached at the start, whatever the clearance
+            if kind == "force":
+                # |f| >= 0 always: a level of 0 N is reached at the start, whatever the clearance
                 at_start = jnp.where(jnp.asarray(a)[None, :] == 0.0, 1.0, at_start)
         counted = (jnp.arange(n_times) >= first)[:, None]
         return CrossingExceedance(
@@ -321,9 +320,8 @@ class PeakExceedance(NamedTuple):
     each histogram time, from Monte Carlo's peak counts (:meth:`MonteCarloResult.peak_exceedance`)."""
 
     levels: np.ndarray  # (n_bins,) the bins' upper edges, in the quantity's unit
-    probability: (
-        np.ndarray
-    )  # (n_hist, n_bins) P(peak >= level) by each of histogram_times (> at the top edge)
+    # (n_hist, n_bins) P(peak >= level) by each of histogram_times (> at the top edge)
+    probability: np.ndarray
     standard_error: np.ndarray  # (n_hist, n_bins) sqrt(p (1 - p) / n_samples), the binomial one
     times: np.ndarray  # (n_hist,) the histogram times (s)
     start: float  # the time (s) the peaks are taken from

@@ -214,21 +214,16 @@ def run_study(
 
 def sl_peak_estimates(system, kw: dict, criterion: str, mc: MonteCarloResult) -> dict:
     """SL's estimate of each meshing force's peak at the Monte Carlo's peak levels (the bins' upper edges) and
-    histogram times: ``{quantity: {"levels", "probability", "upper_bound"}}`` (arrays (n_bins,) and
-    (n_hist, n_bins)), from a run saved every step with ``deflection_lag`` (crossings between steps;
+    histogram times: ``{quantity: {"levels", "probability"}}`` (arrays (n_bins,) and (n_hist, n_bins)), from a run saved every step with ``deflection_lag`` (crossings between steps;
     :meth:`pgtjax.MomentResult.peak_exceedance`)."""
     run = {k: v for k, v in kw.items() if k != "observables"}  # only the meshes are needed, at every step
     sl = solve_moments(system, criterion=criterion, save_every=1, deflection_lag=True, **run)
     rows = np.argmin(np.abs(np.asarray(sl.times)[None, :] - np.asarray(mc.histogram_times)[:, None]), axis=1)
     out = {}
     for quantity, edges in mc.peak_edges.items():
-        levels = np.maximum(np.asarray(edges)[1:], 0.0)
+        levels = np.asarray(edges)[1:]  # the edges start at 0 (peak_force_bins_of)
         estimate = sl.peak_exceedance(quantity, levels, system=system)
-        out[quantity] = dict(
-            levels=levels,
-            probability=np.asarray(estimate.probability)[rows],
-            upper_bound=np.asarray(estimate.upper_bound)[rows],
-        )
+        out[quantity] = dict(levels=levels, probability=np.asarray(estimate.probability)[rows])
     return out
 
 
@@ -267,22 +262,19 @@ def peak_force_summary(study: PlanetaryStudy) -> dict | None:
         cumulative = np.cumsum(np.asarray(counts)[-1])
         entry = {"bin_width_N": float(edges[1] - edges[0]), "top_edge_N": float(edges[-1])}
         entry["beyond_top_edge_fraction"] = float((mc.n_samples - cumulative[-1]) / mc.n_samples)
+        # SL's estimate at the same levels (the bins' upper edges), by the end: ideally 1 - the quantile
+        sl_end = None if study.sl_peaks is None else study.sl_peaks[quantity]["probability"][-1]
+        reach = {}
         for label, per_mille in levels.items():
             # whole numbers of samples (at most n_samples, so doubles hold them exactly): the sample count the
             # quantile needs below it, and the 10 beyond it that make it worth stating
             needed = -(-per_mille * mc.n_samples // 1000)
             reached = np.nonzero(cumulative >= needed)[0]
-            enough = mc.n_samples - needed >= 10
-            entry[f"{label}_N"] = float(edges[reached[0] + 1]) if enough and reached.size else None
-        if (
-            getattr(study, "sl_peaks", None) is not None
-        ):  # SL's probability of reaching each quantile (ideally 1 - q)
-            estimate = study.sl_peaks[quantity]
-            entry["sl_reach_probability"] = {
-                label: None if entry[f"{label}_N"] is None
-                else float(estimate["probability"][-1][np.argmin(np.abs(estimate["levels"] - entry[f"{label}_N"]))])
-                for label in levels
-            }  # fmt: skip
+            stated = mc.n_samples - needed >= 10 and reached.size
+            entry[f"{label}_N"] = float(edges[reached[0] + 1]) if stated else None
+            reach[label] = float(sl_end[reached[0]]) if stated and sl_end is not None else None
+        if sl_end is not None:
+            entry["sl_reach_probability"] = reach
         per_mesh[quantity.split(":", 1)[1]] = entry
     return dict(
         note="peak (largest magnitude) of each meshing force of each sample over every step from t = 0 "
