@@ -358,8 +358,10 @@ class _Carry(NamedTuple):
     snap: Snapshot
     z: jax.Array  # contact (mu, sigma) at the current time, (2 nc,)
     lin: Linearization  # the contacts' (k_e, f_0) at z, (nc,) each
-    # with deflection_lag: each contact deflection's covariance with its value one step before, (nc,)
+    # with deflection_lag: each contact deflection's (nc,) and each displacement's (n,) covariance with its
+    # value one step before
     lag: jax.Array | None = None
+    u_lag: jax.Array | None = None
 
 
 def _linearize_contacts(system, snap: Snapshot, z, criterion) -> Linearization:
@@ -414,6 +416,7 @@ class _Saved(NamedTuple):
     converged: jax.Array
     covariance: jax.Array  # (2m, 2m) of the selected (u, v), m = len(covariance_dofs)
     delta_lag: jax.Array | None  # (nc,) each deflection's covariance with its value one step earlier
+    u_lag: jax.Array | None  # (n,) each displacement's covariance with its value one step earlier
 
 
 def _deflection_lag(g0, g1, cross) -> jax.Array:
@@ -421,6 +424,13 @@ def _deflection_lag(g0, g1, cross) -> jax.Array:
     ``g1^T Cov(u1, u0) g0``; ``cross`` = Cov(u1, u0) = (X_u P)[:, :n] = P_uu + (dX P)[:, :n] (n, n) (the
     step's noise is independent of its start); ``g0``, ``g1`` the directions at the two ends (n, nc)."""
     return jnp.sum(g1 * (cross @ g0), axis=0)
+
+
+def _step_lags(s0: Snapshot, s1: Snapshot, cross, nc: int) -> tuple[jax.Array, jax.Array]:
+    """Each contact deflection's (nc,) and each displacement's (n,) covariance with its value at the step's
+    start, from ``cross`` = Cov(u1, u0) (n, n)."""
+    delta = _deflection_lag(s0.direction, s1.direction, cross) if nc else jnp.zeros((0,))
+    return delta, _diagonal(cross)
 
 
 def _record(system, carry: _Carry, info: _FixedPointInfo, t, observables, cov_index=()) -> _Saved:
@@ -458,6 +468,7 @@ def _record(system, carry: _Carry, info: _FixedPointInfo, t, observables, cov_in
         info.converged,
         carry.cov[np.ix_(cov_index, cov_index)] if cov_index else jnp.zeros((0, 0)),
         carry.lag,
+        carry.u_lag,
     )
 
 
@@ -537,10 +548,10 @@ def _moment_step(
         new_cov = _assemble_covariance(cov, d_cov, c_mat, g_u, g_v, h)
         cross = cov[:n, :n] + c_mat[:, :n]  # Cov(u1, u0)
     new_mean = jnp.concatenate([u_mean, (2.0 / h) * (u_mean - mean[:n]) - mean[n:]])
-    lag = None
+    lag = u_lag = None
     if with_lag:
-        lag = _deflection_lag(s0.direction, s1.direction, cross) if nc else jnp.zeros((0,))
-    return _Carry(new_mean, new_cov, s1, z1, lin1, lag), info
+        lag, u_lag = _step_lags(s0, s1, cross, nc)
+    return _Carry(new_mean, new_cov, s1, z1, lin1, lag, u_lag), info
 
 
 def _assemble_covariance(cov, d_cov, c_mat, g_u, g_v, h):
@@ -688,11 +699,10 @@ def _moment_step_constant(
     g_v = (2.0 / h) * g_u + v_noise
     new_cov = _assemble_covariance(cov, d_cov, c_mat, g_u, g_v, h)
     new_mean = jnp.concatenate([u_mean, (2.0 / h) * (u_mean - mean[:n]) - mean[n:]])
-    lag = None
+    lag = u_lag = None
     if with_lag:
-        cross = cov[:n, :n] + c_mat[:, :n]  # Cov(u1, u0)
-        lag = _deflection_lag(s0.direction, s1.direction, cross) if nc else jnp.zeros((0,))
-    return _Carry(new_mean, new_cov, s1, z1, lin1, lag), info
+        lag, u_lag = _step_lags(s0, s1, cov[:n, :n] + c_mat[:, :n], nc)  # Cov(u1, u0)
+    return _Carry(new_mean, new_cov, s1, z1, lin1, lag, u_lag), info
 
 
 def solve_moments(
@@ -757,9 +767,10 @@ def solve_moments(
             saved, ``result.covariance`` (n_times, 2m, 2m) ordered ``(u_1..u_m, v_1..v_m)``, with the blocks
             ``cov_uu``, ``cov_uv``, ``cov_vv`` (m, 2m and m^2 numbers per saved time, so select what you need
             for a large model).
-        deflection_lag: also save each contact deflection's covariance with its value one step earlier
-            (``cov_delta_lag``, m^2; needs ``save_every = 1``): what SL's peak estimate of a contact deflection
-            or force needs (:meth:`pgtjax.MomentResult.peak_exceedance`).
+        deflection_lag: also save each contact deflection's and each displacement's covariance with its value
+            one step earlier (``cov_delta_lag``, m^2, and ``cov_u_lag``, the DOF's unit squared; needs
+            ``save_every = 1``): what SL's peak estimates over every step need
+            (:meth:`pgtjax.MomentResult.peak_exceedance`).
     """
     validate_system(system, t0)
     cov_index = covariance_index(system, covariance_dofs)
@@ -777,7 +788,7 @@ def solve_moments(
             "`deflection_lag` pairs each saved time with the step before it, for peaks taken over every step: it "
             f"needs save_every = 1, got {save_every}"
         )
-    per_save = 4 * system.n_dof + (6 + deflection_lag) * system.n_contacts + 2 * n_obs
+    per_save = (4 + deflection_lag) * system.n_dof + (6 + deflection_lag) * system.n_contacts + 2 * n_obs
     per_save += len(cov_index) ** 2 + 3
     check_memory("solve_moments", n_steps // save_every + 1, per_save)
     check_contact_stiffness_over_time(system, t0, dt, n_steps)
@@ -870,8 +881,11 @@ def _solve_moments_jit(
     constant_path = prop is not None and system.n_dof > _DENSE_PHI_MAX_DOF
     s0 = _varying_snapshot(system, t0) if constant_path else snapshot(system, t0)
     z0 = _contact_state(system, s0, mean0, p0)
-    lag0 = jnp.zeros((system.n_contacts,)) if deflection_lag else None  # no step before t0
-    carry = _Carry(mean0, p0, s0, z0, _linearize_contacts(system, s0, z0, criterion), lag0)
+    # no step before t0
+    lag0, u_lag0 = (
+        (jnp.zeros((system.n_contacts,)), jnp.zeros((system.n_dof,))) if deflection_lag else (None, None)
+    )
+    carry = _Carry(mean0, p0, s0, z0, _linearize_contacts(system, s0, z0, criterion), lag0, u_lag0)
     no_iterations = _FixedPointInfo(jnp.array(0), jnp.array(0.0), jnp.array(True))
     first = _record(system, carry, no_iterations, t0, observables, cov_index)
     n_blocks = n_steps // save_every

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-_DOF_FIELDS = ("mean_u", "std_u", "mean_v", "std_v", "u", "v")
+_DOF_FIELDS = ("mean_u", "std_u", "mean_v", "std_v", "u", "v", "cov_u_lag")
 _CONTACT_FIELDS = {
     "mean_delta": "m",
     "std_delta": "m",
@@ -43,6 +43,8 @@ def _xarray():
 
 
 def _units(name: str, value) -> str:
+    if name == "cov_u_lag":
+        return "see dof_unit, squared"
     if name in _DOF_FIELDS:
         return "see dof_unit" + ("; per second" if name.endswith("v") else "")
     if name in _CONTACT_FIELDS:

@@ -110,9 +110,10 @@ class MomentResult(_Labelled, _Covariance):
     observable_names: tuple[str, ...] = eqx.field(static=True, default=())
     covariance: Float64[Array, "n_times n_cov n_cov"] | None = None  # see covariance_dofs
     covariance_dofs: tuple[str, ...] = eqx.field(static=True, default=())
-    # each contact deflection's covariance with its value one step earlier (m^2; 0 at the first time), saved
-    # with solve_moments(deflection_lag=True), else None
+    # each contact deflection's (m^2) and each displacement's (the DOF's unit squared) covariance with its
+    # value one step earlier (0 at the first time), saved with solve_moments(deflection_lag=True), else None
     cov_delta_lag: Float64[Array, "n_times n_contacts"] | None = None
+    cov_u_lag: Float64[Array, "n_times n_dof"] | None = None
 
     def contact_loss_probability(self, clearance) -> jax.Array:
         """P(|delta| < b) of each contact at each saved time under SL's Gaussian deflection, (n_times, nc), for
@@ -135,17 +136,20 @@ class MomentResult(_Labelled, _Covariance):
         ``levels`` (>= 0, the quantity's unit) by each saved time, from the level crossings of the Gaussian
         response (:class:`CrossingExceedance`; rows before ``start`` are 0; docs/peaks.md). Quantities:
 
-        - ``"u:<dof>"``, a displacement: Rice's continuous-time rate, integrated over the saved times; needs the
-          DOF's joint displacement-velocity covariance (solve with ``covariance_dofs`` including it). Save every
-          few steps, and far more often than ``std / |d mean / dt|`` where the response is nearly deterministic;
-          the step must resolve the response (its velocity stands for the displacement's rate);
-        - ``"delta:<contact>"``, a contact deflection (m), and ``"force:<contact>"``, a contact force (N): the
-          probability of crossing between each pair of consecutive steps, as Monte Carlo takes the peaks (solve
-          with ``deflection_lag=True``, saved every step). ``|f| >= F`` puts the deflection outside barriers
-          that move with the contact's inputs (``b + F / k(t)`` for :class:`pgtjax.Backlash`): pass the
-          ``system`` solved (its law must implement ``deflections_at_force``; only its contact names and count
-          of DOFs are checked against the result, so pass the very system, with the stiffness it was solved
-          with).
+        - ``"u:<dof>"``, a displacement (the DOF's unit), ``"delta:<contact>"``, a contact deflection (m), and
+          ``"force:<contact>"``, a contact force (N): the probability of crossing between each pair of
+          consecutive steps, as Monte Carlo takes the peaks (solve with ``deflection_lag=True``, saved every
+          step);
+        - ``"u:<dof>"`` from a run without ``deflection_lag``: Rice's continuous-time rate, integrated over the
+          saved times; needs the DOF's joint displacement-velocity covariance (solve with ``covariance_dofs``
+          including it). Save every few steps, and far more often than ``std / |d mean / dt|`` where the
+          response is nearly deterministic; the step must resolve the response (its velocity stands for the
+          displacement's rate), else the estimate is far off (docs/peaks.md).
+
+        A force level ``F``: ``|f| >= F`` puts the deflection outside barriers that move with the contact's
+        inputs (``b + F / k(t)`` for :class:`pgtjax.Backlash`). Pass the ``system`` solved (its law must
+        implement ``deflections_at_force``; only its contact names and count of DOFs are checked against the
+        result, so pass the very system, with the stiffness it was solved with).
 
         A deterministic quantity (std 0) counts the crossings of its mean. Works under ``jax.jit`` and
         ``jax.grad`` (the levels and ``start`` are not differentiated)."""
@@ -172,12 +176,15 @@ class MomentResult(_Labelled, _Covariance):
             a = None
         if a is None or a.ndim != 1 or a.size == 0 or not np.all(np.isfinite(a)) or np.any(a < 0):
             raise ValueError(f"`levels` must be a 1-D array of finite levels >= 0, got {levels!r}")
+        rice = kind == "u" and self.cov_u_lag is None
         if kind == "u":
             i = self.dof(name)
-            if name not in self.covariance_dofs:
+            if rice and name not in self.covariance_dofs:
                 raise ValueError(
-                    f"the peak of {quantity!r} needs its displacement-velocity covariance: solve with "
-                    f"`covariance_dofs` including {name!r} (saved: {list(self.covariance_dofs) or 'none'})"
+                    f"the peak of {quantity!r} needs each step's covariance with the step before (solve with "
+                    "`deflection_lag=True` and save_every=1) or, for Rice's rate, its displacement-velocity "
+                    f"covariance (solve with `covariance_dofs` including {name!r}; saved: "
+                    f"{list(self.covariance_dofs) or 'none'})"
                 )
         else:
             i = self.contact(name)
@@ -201,20 +208,23 @@ class MomentResult(_Labelled, _Covariance):
                         f"`start` must lie within the run, [{grid[0]:g}, {grid[-1]:g}] s, got {start!r}"
                     )
             first = jnp.argmin(jnp.abs(times - t_start))
-        if kind == "u":
+        if rice:
             j = self.covariance_dofs.index(name)
             mean, std = self.mean_u[:, i], self.std_u[:, i]
             rate = crossing_rate(a, mean, std, self.mean_v[:, i], self.std_v[:, i], self.cov_uv[:, j, j])
             crossings = cumulative_trapezoid(rate, times, first)
             at_start = exceedance_at_start(a, mean[first], std[first])[None, :]
         else:
-            mean, std = self.mean_delta[:, i], self.std_delta[:, i]
+            if kind == "u":
+                mean, std, lag = self.mean_u[:, i], self.std_u[:, i], self.cov_u_lag[:, i]
+            else:
+                mean, std, lag = self.mean_delta[:, i], self.std_delta[:, i], self.cov_delta_lag[:, i]
             if kind == "force":
                 upper, lower = self._force_barriers(quantity, i, jnp.asarray(a), system)
             else:
                 upper = jnp.broadcast_to(jnp.asarray(a)[None, :], (n_times, a.size))
                 lower = -upper
-            per_step = step_crossings(upper, lower, mean, std, self.cov_delta_lag[:, i])  # step j -> j + 1
+            per_step = step_crossings(upper, lower, mean, std, lag)  # step j -> j + 1
             per_step = jnp.where((jnp.arange(n_times - 1) >= first)[:, None], per_step, 0.0)
             crossings = jnp.concatenate([jnp.zeros_like(per_step[:1]), jnp.cumsum(per_step, axis=0)])
             at_start = outside_probability(upper[first], lower[first], mean[first], std[first])[None, :]
@@ -288,6 +298,7 @@ class MomentResult(_Labelled, _Covariance):
             covariance=saved.covariance,
             covariance_dofs=tuple(covariance_dofs),
             cov_delta_lag=saved.delta_lag,
+            cov_u_lag=saved.u_lag,
         )
 
 
@@ -303,8 +314,8 @@ class TimeAverage(NamedTuple):
 
 class CrossingExceedance(NamedTuple):
     """SL's estimate of the probability that a quantity's peak (largest magnitude since ``start``) has reached
-    each level by each saved time, from the level crossings of the Gaussian response: Rice's rate for a
-    displacement, crossings between consecutive steps for a contact quantity
+    each level by each saved time, from the level crossings of the Gaussian response: crossings between
+    consecutive steps, or Rice's rate for a displacement of a run without the step lags
     (:meth:`MomentResult.peak_exceedance`; :mod:`pgtjax._crossings`). Rows before ``start`` are 0."""
 
     levels: jax.Array  # (k,) in the quantity's unit
@@ -330,8 +341,8 @@ class PeakExceedance(NamedTuple):
 def every_nth_save(result: MomentResult, n: int) -> MomentResult:
     """``result`` at every ``n``-th saved time (first included). The per-block solver diagnostics
     (``iterations``, ``residual``, ``converged``) are reduced over the ``n`` blocks merged into each, so that
-    a step that did not converge is not dropped with its block; ``cov_delta_lag`` (a covariance with the step
-    before) is dropped for n > 1."""
+    a step that did not converge is not dropped with its block; ``cov_delta_lag`` and ``cov_u_lag``
+    (covariances with the step before) are dropped for n > 1."""
     if (len(result.times) - 1) % n:
         raise ValueError(f"{len(result.times) - 1} saved blocks cannot be merged by {n}")
     out = jax.tree.map(lambda a: a[::n], result)
@@ -349,7 +360,9 @@ def every_nth_save(result: MomentResult, n: int) -> MomentResult:
         ),
     )
     if n > 1 and result.cov_delta_lag is not None:  # a lag of one step no longer pairs the kept times
-        out = eqx.tree_at(lambda r: r.cov_delta_lag, out, None, is_leaf=lambda x: x is None)
+        out = eqx.tree_at(
+            lambda r: (r.cov_delta_lag, r.cov_u_lag), out, (None, None), is_leaf=lambda x: x is None
+        )
     return out
 
 
@@ -617,9 +630,9 @@ def _check_loaded_shapes(fields: dict, path) -> None:
     columns = {name: len(fields.get(name, ())) for name in ("dof_names", "contact_names", "observable_names")}
     expected = {
         "mean_u": "dof_names", "std_u": "dof_names", "mean_v": "dof_names", "std_v": "dof_names",
-        "u": "dof_names", "v": "dof_names", "mean_delta": "contact_names", "std_delta": "contact_names",
-        "force_mean": "contact_names", "force_std": "contact_names", "force": "contact_names",
-        "k_e": "contact_names", "f_0": "contact_names", "cov_delta_lag": "contact_names",
+        "u": "dof_names", "v": "dof_names", "cov_u_lag": "dof_names", "mean_delta": "contact_names",
+        "std_delta": "contact_names", "force_mean": "contact_names", "force_std": "contact_names",
+        "force": "contact_names", "k_e": "contact_names", "f_0": "contact_names", "cov_delta_lag": "contact_names",
         "mean_obs": "observable_names",
         "std_obs": "observable_names",
     }  # fmt: skip

@@ -145,7 +145,10 @@ def test_sl_peaks_refuse_what_they_cannot_estimate():
     cases = [
         (lambda: sl.peak_exceedance("v:x", [0.1]), "must be a displacement 'u:<dof>', a contact deflection"),
         (lambda: sl.peak_exceedance("u:y", [0.1]), "unknown DOF 'y'"),
-        (lambda: plain.peak_exceedance("u:x", [0.1]), "solve with `covariance_dofs` including 'x'"),
+        (
+            lambda: plain.peak_exceedance("u:x", [0.1]),
+            "`deflection_lag=True`.*`covariance_dofs` including 'x'",
+        ),
         (lambda: sl.peak_exceedance("u:x", [-0.1]), "`levels` must be a 1-D array of finite levels >= 0"),
         (lambda: sl.peak_exceedance("u:x", [[0.1]]), "`levels`"),
         (lambda: sl.peak_exceedance("u:x", [np.nan]), "`levels`"),
@@ -267,11 +270,12 @@ def chain_of_18(varying_stiffness: bool):
 
 @pytest.mark.parametrize("which", ["turning pair", "chain", "chain, varying K"])
 def test_deflection_lag_is_the_covariance_with_the_step_before(which):
-    """cov_delta_lag from solve_moments(deflection_lag=True) against g(t1)^T Phi P0 g(t0), with SL's full
-    covariance P0 at the step's start and the one-step map Phi of the linear system taken column by column
-    from deterministic one-step runs of pg.simulate (unit initial states, minus the run from rest); for each of
-    the three step paths (a small system's dense map, the contact-free map formed once, a Woodbury correction
-    per step). every_nth_save drops the lag (it no longer pairs the kept times)."""
+    """cov_delta_lag and cov_u_lag from solve_moments(deflection_lag=True) against g(t1)^T Phi P0 g(t0) and the
+    diagonal of [I 0] Phi P0 [I 0]^T, with SL's full covariance P0 at the step's start and the one-step map Phi
+    of the linear system taken column by column from deterministic one-step runs of pg.simulate (unit initial
+    states, minus the run from rest); for each of the three step paths (a small system's dense map, the
+    contact-free map formed once, a Woodbury correction per step). every_nth_save drops the lags (they no
+    longer pair the kept times)."""
     from pgtjax._results import every_nth_save
 
     system = {"turning pair": turning_pair, "chain": lambda: chain_of_18(False),
@@ -279,7 +283,9 @@ def test_deflection_lag_is_the_covariance_with_the_step_before(which):
     n, dt = system.n_dof, 1e-3
     sl = pg.solve_moments(system, dt=dt, n_steps=30, covariance_dofs="all", deflection_lag=True)
     assert sl.cov_delta_lag.shape == (31, 2) and sl.cov_delta_lag.dtype == jnp.float64
+    assert sl.cov_u_lag.shape == (31, n) and sl.cov_u_lag.dtype == jnp.float64
     np.testing.assert_array_equal(np.asarray(sl.cov_delta_lag[0]), 0.0)
+    np.testing.assert_array_equal(np.asarray(sl.cov_u_lag[0]), 0.0)
     for k in (1, 30):
         t0 = float(sl.times[k - 1])
 
@@ -296,10 +302,15 @@ def test_deflection_lag_is_the_covariance_with_the_step_before(which):
         np.testing.assert_allclose(
             np.asarray(sl.cov_delta_lag[k]), np.sum(g1 * (lag @ g0), axis=0), rtol=1e-8
         )
+        np.testing.assert_allclose(
+            np.asarray(sl.cov_u_lag[k]), np.diag(lag), rtol=1e-8, atol=1e-12 * np.abs(lag).max()
+        )
     plain = pg.solve_moments(system, dt=dt, n_steps=30)
-    assert plain.cov_delta_lag is None
+    assert plain.cov_delta_lag is None and plain.cov_u_lag is None
     np.testing.assert_array_equal(np.asarray(plain.std_u), np.asarray(sl.std_u))  # the run itself unchanged
-    assert every_nth_save(sl, 2).cov_delta_lag is None and every_nth_save(sl, 1).cov_delta_lag is not None
+    halved = every_nth_save(sl, 2)
+    assert halved.cov_delta_lag is None and halved.cov_u_lag is None
+    assert every_nth_save(sl, 1).cov_delta_lag is not None and every_nth_save(sl, 1).cov_u_lag is not None
 
 
 @pytest.mark.parametrize("dt", [1e-3, 0.05])
@@ -310,9 +321,10 @@ def test_sl_contact_peaks_under_a_varying_mesh_stiffness_match_monte_carlo(dt):
     (at 3 std, with the coarse step, the Poisson estimate was 10 % above Monte Carlo: crossings clump there).
     With a fine step (omega dt = 0.06) and with a step that does not resolve the oscillator (omega dt = 3.1),
     where Rice's continuous-time rate from the velocity is off by a factor of 5 and more (asserted): the
-    estimate counts crossings between consecutive steps, as Monte Carlo takes the peaks. The moving barrier
-    matters: with the fine step the deflection's estimate at the mean stiffness's barrier F / k0 (about half
-    the truth) fails the same test."""
+    estimate counts crossings between consecutive steps, as Monte Carlo takes the peaks. The same for the
+    displacement of the DOF (its own step lag, here equal to the deflection's). The moving barrier matters:
+    with the fine step the deflection's estimate at the mean stiffness's barrier F / k0 (about half the truth)
+    fails the same test."""
     system = mesh_oscillator()
     n_steps = 3000 if dt < 0.01 else 600
     sl = pg.solve_moments(system, dt=dt, n_steps=n_steps, deflection_lag=True, covariance_dofs="all")
@@ -321,6 +333,7 @@ def test_sl_contact_peaks_under_a_varying_mesh_stiffness_match_monte_carlo(dt):
     scales = {
         "delta:c": float(jnp.max(sl.std_delta[k0:, 0])),
         "force:c": float(jnp.max(sl.force_std[k0:, 0])),
+        "u:x": float(jnp.max(sl.std_u[k0:, 0])),
     }
     sigmas = np.array([2.0, 3.5, 4.0])
     peaks = {q: np.concatenate([[0.0], s * sigmas, [20 * s]]) for q, s in scales.items()}
@@ -345,10 +358,52 @@ def test_sl_contact_peaks_under_a_varying_mesh_stiffness_match_monte_carlo(dt):
         se_force = np.asarray(mc.peak_exceedance("force:c").standard_error[0, :3])
         fixed = sl.peak_exceedance("delta:c", scales["force:c"] * sigmas / OMEGA**2, start=start)
         assert not agrees(np.asarray(fixed.probability[-1]), p_force, se_force)
-    else:  # the continuous-time rate of the same deflection (= the DOF)
-        rice = np.asarray(sl.peak_exceedance("u:x", scales["delta:c"] * sigmas, start=start).probability[-1])
+    else:  # the continuous-time rate of the same deflection (= the DOF), from the run without the step lags
+        no_lags = eqx.tree_at(lambda r: (r.cov_delta_lag, r.cov_u_lag), sl, (None, None))
+        rice = np.asarray(
+            no_lags.peak_exceedance("u:x", scales["delta:c"] * sigmas, start=start).probability[-1]
+        )
         p_delta = np.asarray(mc.peak_exceedance("delta:c").probability[0, :3])
         assert np.all(rice[tail] > 5 * p_delta[tail]), (rice, p_delta)
+
+
+@pytest.mark.parametrize("varying_stiffness", [False, True])
+def test_displacement_peak_between_steps_has_the_gradient_of_a_central_difference(varying_stiffness):
+    """d P(peak of u >= a) / d log s, s scaling the chain's stiffness, counted between steps (cov_u_lag),
+    against a central difference, on the two step paths of a larger model (the contact-free map formed once,
+    a Woodbury correction per step), whose derivative rules differ; jitted, as a design objective runs."""
+    base = chain_of_18(varying_stiffness)
+    dof = base.dof_names[8]
+
+    def system(log_s):
+        return eqx.tree_at(lambda sy: sy.stiffness, base, _scaled(base.stiffness, jnp.exp(log_s)))
+
+    def solve(log_s):
+        return pg.solve_moments(system(log_s), dt=2e-3, n_steps=150, deflection_lag=True)
+
+    ref = solve(0.0)
+    i = ref.dof(dof)
+    level = float(jnp.max(jnp.abs(ref.mean_u[:, i])) + 1.5 * jnp.max(ref.std_u[:, i]))
+
+    def probability(log_s):
+        return solve(log_s).peak_exceedance(f"u:{dof}", [level], start=0.1).probability[-1, 0]
+
+    x, h = 0.0, 1e-5
+    value, grad = (
+        float(r) for r in jax.jit(jax.value_and_grad(probability))(x)
+    )  # jitted, as a design runs it
+    assert 0.01 < value < 0.99
+    jitted = jax.jit(probability)
+    fd = float((jitted(x + h) - jitted(x - h)) / (2 * h))
+    assert abs(fd) > 1e-3 * value  # the level's probability moves with the stiffness
+    np.testing.assert_allclose(grad, fd, rtol=1e-5)
+
+
+def _scaled(stiffness, factor):
+    """A system's stiffness field (an array or a function of time) times ``factor``."""
+    if callable(stiffness):
+        return lambda t: factor * stiffness(t)
+    return factor * jnp.asarray(stiffness)
 
 
 def test_sl_contact_peaks_refuse_what_they_cannot_estimate():
