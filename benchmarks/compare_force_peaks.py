@@ -7,8 +7,9 @@ steps, and Rice's continuous-time rate from the velocity) against Monte Carlo's 
   (``F / k0``), to show what the moving barrier adds; with a fine step, and with a step that does not resolve
   the oscillator (the discrete process is what both methods see);
 - the gear pair of ch. 4 in its no-impact regime (its mesh force, time-varying mesh stiffness);
-- the planetary model of ch. 3 (a sun-planet and a ring-planet mesh force, from its static equilibrium with
-  the wind filter's stationary covariance).
+- the planetary model of ch. 3 (a sun-planet and a ring-planet mesh force, displacements, and the ring's
+  displacement at planet 1's moving contact point, from its static equilibrium with the wind filter's
+  stationary covariance).
 
 Levels are in standard deviations of SL's force (displacement) above its largest |mean| over the window.
 Writes benchmarks/results/force_peaks.json.
@@ -34,7 +35,7 @@ SIGMAS = [2.0, 3.0, 3.5, 4.0]
 
 
 def compare(name, system, contacts, n_samples, *, dt, n_steps, start, sl_kwargs=None, mc_kwargs=None,
-            fixed_stiffness=None, dofs=()) -> dict:  # fmt: skip
+            fixed_stiffness=None, dofs=(), observables=()) -> dict:  # fmt: skip
     sl_kwargs, mc_kwargs = sl_kwargs or {}, mc_kwargs or {}
     sl = pg.solve_moments(system, dt=dt, n_steps=n_steps, save_every=1, deflection_lag=True,
                           covariance_dofs=list(dofs), **sl_kwargs)  # fmt: skip
@@ -44,6 +45,9 @@ def compare(name, system, contacts, n_samples, *, dt, n_steps, start, sl_kwargs=
         (f"force:{c}", sl.force_mean[:, sl.contact(c)], sl.force_std[:, sl.contact(c)]) for c in contacts
     ]
     moments += [(f"u:{d}", sl.mean_u[:, sl.dof(d)], sl.std_u[:, sl.dof(d)]) for d in dofs]
+    moments += [
+        (f"obs:{o}", sl.mean_obs[:, sl.observable(o)], sl.std_obs[:, sl.observable(o)]) for o in observables
+    ]
     for q, mean_t, std_t in moments:
         mean = float(jnp.max(jnp.abs(mean_t[first:])))
         std = float(jnp.max(std_t[first:]))
@@ -85,8 +89,10 @@ def compare(name, system, contacts, n_samples, *, dt, n_steps, start, sl_kwargs=
         rice = no_lags.peak_exceedance(q, levels[q], start=start)
         dof_rows.append(row(q, dict(dof=d, levels=levels[q].tolist()),
                             sl_rice_poisson=np.asarray(rice.probability[-1]).tolist()))  # fmt: skip
+    obs_rows = [row(f"obs:{o}", dict(observable=o, levels=levels[f"obs:{o}"].tolist())) for o in observables]
     return dict(case=name, n_samples=n_samples, dt_s=dt, n_steps=n_steps, window_s=[start, float(sl.times[-1])],
-                levels_in_std_above_mean=SIGMAS, mc_wall_s=wall, contacts=rows, dofs=dof_rows)  # fmt: skip
+                levels_in_std_above_mean=SIGMAS, mc_wall_s=wall, contacts=rows, dofs=dof_rows,
+                observables=obs_rows)  # fmt: skip
 
 
 def main():
@@ -96,6 +102,7 @@ def main():
     args = ap.parse_args()
     from pgtjax.models import gear_pair as gp
     from pgtjax.models import planetary as pm
+    from pgtjax.studies.planetary import contact_point_observables
 
     stiffness = pg.FourierSeries(OMEGA**2, sin_coefficients=[0.4 * OMEGA**2], frequency=2 * np.pi * 7.0)
     oscillator = pg.System(mass=[[1.0]], stiffness=[[0.0]], damping=[[2 * 0.3 * OMEGA]], load=[0.0],
@@ -108,7 +115,8 @@ def main():
     lay = pm.layout(p)
     planetary = pm.build(p)
     start_kw = dict(initial_displacement=pg.static_equilibrium(planetary),
-                    initial_covariance=pm.wind_filter_stationary_covariance(p, lay))  # fmt: skip
+                    initial_covariance=pm.wind_filter_stationary_covariance(p, lay),
+                    observables=contact_point_observables(p))  # fmt: skip
     names = planetary.contact_names()
     cases = [
         compare("oscillator, stiffness +-40 % at 7 Hz", oscillator, ["c"], args.samples, dt=1e-3, n_steps=3000,
@@ -119,12 +127,14 @@ def main():
                 dofs=["y1", "z"]),
         compare("planetary", planetary, [names[0], names[3]], args.planetary_samples, dt=0.0027, n_steps=1000,
                 start=0.0, sl_kwargs=start_kw, mc_kwargs=start_kw,
-                dofs=["planet1_eta", "carrier_u", "ring_node0_radial"]),
+                dofs=["planet1_eta", "carrier_u", "ring_node0_radial"],
+                observables=["ring_contact1_radial", "ring_contact1_tangential"]),
     ]  # fmt: skip
     for case in cases:
         print(f"{case['case']}: P(peak >= mean + k std), k = {SIGMAS}, window {case['window_s']} s")
-        for row in case["contacts"] + case["dofs"]:
-            print(f"  {row.get('contact') or 'u:' + row['dof']}")
+        for row in case["contacts"] + case["dofs"] + case["observables"]:
+            label = row.get("contact") or ("u:" + row["dof"] if "dof" in row else "obs:" + row["observable"])
+            print(f"  {label}")
             for key in (
                 "monte_carlo",
                 "sl_poisson",

@@ -358,10 +358,13 @@ class _Carry(NamedTuple):
     snap: Snapshot
     z: jax.Array  # contact (mu, sigma) at the current time, (2 nc,)
     lin: Linearization  # the contacts' (k_e, f_0) at z, (nc,) each
-    # with deflection_lag: each contact deflection's (nc,) and each displacement's (n,) covariance with its
-    # value one step before
+    # with deflection_lag: each contact deflection's (nc,), displacement's (n,) and observable's (n_obs,)
+    # covariance with its value one step before
     lag: jax.Array | None = None
     u_lag: jax.Array | None = None
+    obs_lag: jax.Array | None = None
+    # with deflection_lag and observables: C(t) at the current time, (n_obs, n), for the next step's lag
+    obs_matrix: jax.Array | None = None
 
 
 def _linearize_contacts(system, snap: Snapshot, z, criterion) -> Linearization:
@@ -417,6 +420,7 @@ class _Saved(NamedTuple):
     covariance: jax.Array  # (2m, 2m) of the selected (u, v), m = len(covariance_dofs)
     delta_lag: jax.Array | None  # (nc,) each deflection's covariance with its value one step earlier
     u_lag: jax.Array | None  # (n,) each displacement's covariance with its value one step earlier
+    obs_lag: jax.Array | None  # (n_obs,) each observable's covariance with its value one step earlier
 
 
 def _deflection_lag(g0, g1, cross) -> jax.Array:
@@ -426,18 +430,25 @@ def _deflection_lag(g0, g1, cross) -> jax.Array:
     return jnp.sum(g1 * (cross @ g0), axis=0)
 
 
-def _step_lags(s0: Snapshot, s1: Snapshot, cross, nc: int) -> tuple[jax.Array, jax.Array]:
-    """Each contact deflection's (nc,) and each displacement's (n,) covariance with its value at the step's
-    start, from ``cross`` = Cov(u1, u0) (n, n)."""
+def _step_lags(
+    s0: Snapshot, s1: Snapshot, cross, nc: int, obs_rows
+) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """Each contact deflection's (nc,), displacement's (n,) and observable's (n_obs,) covariance with its value
+    at the step's start, from ``cross`` = Cov(u1, u0) (n, n); ``obs_rows``: the observables' matrices ``(C(t0),
+    C(t1))``, (n_obs, n) each (``Cov(y1, y0) = C1 Cov(u1, u0) C0^T``; an offset does not enter), or None."""
     delta = _deflection_lag(s0.direction, s1.direction, cross) if nc else jnp.zeros((0,))
-    return delta, _diagonal(cross)
+    obs = jnp.zeros((0,)) if obs_rows is None else jnp.sum((obs_rows[1] @ cross) * obs_rows[0], axis=1)
+    return delta, _diagonal(cross), obs
 
 
 def _record(system, carry: _Carry, info: _FixedPointInfo, t, observables, cov_index=()) -> _Saved:
     nc = system.n_contacts
     n = system.n_dof
     if observables is not None:
-        c = checkpoint_name(observables(t), _COVARIANCE_NAME)
+        # with the lags, the carry holds C(t) already (saved every step)
+        c = checkpoint_name(
+            observables(t) if carry.obs_matrix is None else carry.obs_matrix, _COVARIANCE_NAME
+        )
         obs_mean = (
             c @ carry.mean[:n] if observables.offset is None else c @ carry.mean[:n] + observables.shift(t)
         )
@@ -469,11 +480,22 @@ def _record(system, carry: _Carry, info: _FixedPointInfo, t, observables, cov_in
         carry.cov[np.ix_(cov_index, cov_index)] if cov_index else jnp.zeros((0, 0)),
         carry.lag,
         carry.u_lag,
+        carry.obs_lag,
     )
 
 
 def _moment_step(
-    system: System, carry: _Carry, t1, h, criterion, integrator, rtol, max_iter, lu_const=None, with_lag=False
+    system: System,
+    carry: _Carry,
+    t1,
+    h,
+    criterion,
+    integrator,
+    rtol,
+    max_iter,
+    lu_const=None,
+    with_lag=False,
+    obs_rows=None,
 ):
     """One step of the recursion. The covariance update ``Phi P Phi^T + Gamma Gamma^T`` is done blockwise
     from the displacement increments ``dX = K_eff^-1 [E - K_eff, D]`` of the one-step map (Phi itself is
@@ -548,10 +570,10 @@ def _moment_step(
         new_cov = _assemble_covariance(cov, d_cov, c_mat, g_u, g_v, h)
         cross = cov[:n, :n] + c_mat[:, :n]  # Cov(u1, u0)
     new_mean = jnp.concatenate([u_mean, (2.0 / h) * (u_mean - mean[:n]) - mean[n:]])
-    lag = u_lag = None
+    lags = (None, None, None)
     if with_lag:
-        lag, u_lag = _step_lags(s0, s1, cross, nc)
-    return _Carry(new_mean, new_cov, s1, z1, lin1, lag, u_lag), info
+        lags = _step_lags(s0, s1, cross, nc, obs_rows)
+    return _Carry(new_mean, new_cov, s1, z1, lin1, *lags), info
 
 
 def _assemble_covariance(cov, d_cov, c_mat, g_u, g_v, h):
@@ -642,6 +664,7 @@ def _moment_step_constant(
     max_iter,
     prop: ConstantPropagator,
     with_lag=False,
+    obs_rows=None,
 ):
     """One step of the recursion when K and C are constant (only the contacts, load and noise input vary).
 
@@ -699,10 +722,10 @@ def _moment_step_constant(
     g_v = (2.0 / h) * g_u + v_noise
     new_cov = _assemble_covariance(cov, d_cov, c_mat, g_u, g_v, h)
     new_mean = jnp.concatenate([u_mean, (2.0 / h) * (u_mean - mean[:n]) - mean[n:]])
-    lag = u_lag = None
+    lags = (None, None, None)
     if with_lag:
-        lag, u_lag = _step_lags(s0, s1, cov[:n, :n] + c_mat[:, :n], nc)  # Cov(u1, u0)
-    return _Carry(new_mean, new_cov, s1, z1, lin1, lag, u_lag), info
+        lags = _step_lags(s0, s1, cov[:n, :n] + c_mat[:, :n], nc, obs_rows)  # Cov(u1, u0)
+    return _Carry(new_mean, new_cov, s1, z1, lin1, *lags), info
 
 
 def solve_moments(
@@ -767,9 +790,9 @@ def solve_moments(
             saved, ``result.covariance`` (n_times, 2m, 2m) ordered ``(u_1..u_m, v_1..v_m)``, with the blocks
             ``cov_uu``, ``cov_uv``, ``cov_vv`` (m, 2m and m^2 numbers per saved time, so select what you need
             for a large model).
-        deflection_lag: also save each contact deflection's and each displacement's covariance with its value
-            one step earlier (``cov_delta_lag``, m^2, and ``cov_u_lag``, the DOF's unit squared; needs
-            ``save_every = 1``): what SL's peak estimates over every step need
+        deflection_lag: also save each contact deflection's, displacement's and observable's covariance with
+            its value one step earlier (``cov_delta_lag``, m^2, ``cov_u_lag`` and ``cov_obs_lag``, the
+            quantity's unit squared; needs ``save_every = 1``): what SL's peak estimates over every step need
             (:meth:`pgtjax.MomentResult.peak_exceedance`).
     """
     validate_system(system, t0)
@@ -788,7 +811,8 @@ def solve_moments(
             "`deflection_lag` pairs each saved time with the step before it, for peaks taken over every step: it "
             f"needs save_every = 1, got {save_every}"
         )
-    per_save = (4 + deflection_lag) * system.n_dof + (6 + deflection_lag) * system.n_contacts + 2 * n_obs
+    per_save = (4 + deflection_lag) * system.n_dof + (6 + deflection_lag) * system.n_contacts
+    per_save += (2 + deflection_lag) * n_obs
     per_save += len(cov_index) ** 2 + 3
     check_memory("solve_moments", n_steps // save_every + 1, per_save)
     check_contact_stiffness_over_time(system, t0, dt, n_steps)
@@ -881,11 +905,11 @@ def _solve_moments_jit(
     constant_path = prop is not None and system.n_dof > _DENSE_PHI_MAX_DOF
     s0 = _varying_snapshot(system, t0) if constant_path else snapshot(system, t0)
     z0 = _contact_state(system, s0, mean0, p0)
-    # no step before t0
-    lag0, u_lag0 = (
-        (jnp.zeros((system.n_contacts,)), jnp.zeros((system.n_dof,))) if deflection_lag else (None, None)
-    )
-    carry = _Carry(mean0, p0, s0, z0, _linearize_contacts(system, s0, z0, criterion), lag0, u_lag0)
+    n_obs = 0 if observables is None else len(observables.names)
+    sizes = (system.n_contacts, system.n_dof, n_obs)
+    lags0 = tuple(jnp.zeros((k,)) for k in sizes) if deflection_lag else (None,) * 3  # no step before t0
+    obs_matrix0 = observables(t0) if deflection_lag and observables is not None else None
+    carry = _Carry(mean0, p0, s0, z0, _linearize_contacts(system, s0, z0, criterion), *lags0, obs_matrix0)
     no_iterations = _FixedPointInfo(jnp.array(0), jnp.array(0.0), jnp.array(True))
     first = _record(system, carry, no_iterations, t0, observables, cov_index)
     n_blocks = n_steps // save_every
@@ -899,13 +923,18 @@ def _solve_moments_jit(
 
     def step(c, step_number, _):
         t1 = t0 + dt * step_number
+        obs_rows = None
+        if c.obs_matrix is not None:  # C(t) at the step's two ends, each evaluated once
+            obs_rows = (c.obs_matrix, observables(t1))
         if constant_path:
-            return _moment_step_constant(
-                system, c, t1, dt, criterion, integrator, rtol, max_iter, prop, deflection_lag
+            new, info = _moment_step_constant(
+                system, c, t1, dt, criterion, integrator, rtol, max_iter, prop, deflection_lag, obs_rows
             )
-        return _moment_step(
-            system, c, t1, dt, criterion, integrator, rtol, max_iter, lu_const, deflection_lag
-        )
+        else:
+            new, info = _moment_step(
+                system, c, t1, dt, criterion, integrator, rtol, max_iter, lu_const, deflection_lag, obs_rows
+            )
+        return (new if obs_rows is None else new._replace(obs_matrix=obs_rows[1])), info
 
     def record(c, infos, block_index):
         worst = _FixedPointInfo(jnp.max(infos.iterations), jnp.max(infos.residual), jnp.all(infos.converged))

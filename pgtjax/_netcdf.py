@@ -51,6 +51,8 @@ def _units(name: str, value) -> str:
         return _CONTACT_FIELDS[name]
     if name in ("mean_obs", "std_obs"):
         return "the observable's (a combination of the DOFs: m for the ring's displacements)"
+    if name == "cov_obs_lag":
+        return "the observable's, squared"
     if name == "covariance":
         return "products of the cov_row and cov_col DOFs' units (velocities: per second)"
     if name in ("times", "histogram_times"):
@@ -102,7 +104,7 @@ def to_xarray(result, **attributes):
             dims = ("time", "dof")
         elif name in _CONTACT_FIELDS and value.ndim == 2 and value.shape[0] == n_times:
             dims = ("time", "contact")
-        elif name in ("mean_obs", "std_obs"):
+        elif name in ("mean_obs", "std_obs", "cov_obs_lag"):
             dims = ("time", "observable")
         elif name == "covariance":
             dims = ("time", "cov_row", "cov_col")

@@ -110,10 +110,11 @@ class MomentResult(_Labelled, _Covariance):
     observable_names: tuple[str, ...] = eqx.field(static=True, default=())
     covariance: Float64[Array, "n_times n_cov n_cov"] | None = None  # see covariance_dofs
     covariance_dofs: tuple[str, ...] = eqx.field(static=True, default=())
-    # each contact deflection's (m^2) and each displacement's (the DOF's unit squared) covariance with its
-    # value one step earlier (0 at the first time), saved with solve_moments(deflection_lag=True), else None
+    # each contact deflection's (m^2), displacement's and observable's (their unit squared) covariance with
+    # its value one step earlier (0 at the first time), saved with solve_moments(deflection_lag=True), else None
     cov_delta_lag: Float64[Array, "n_times n_contacts"] | None = None
     cov_u_lag: Float64[Array, "n_times n_dof"] | None = None
+    cov_obs_lag: Float64[Array, "n_times n_obs"] | None = None
 
     def contact_loss_probability(self, clearance) -> jax.Array:
         """P(|delta| < b) of each contact at each saved time under SL's Gaussian deflection, (n_times, nc), for
@@ -136,10 +137,10 @@ class MomentResult(_Labelled, _Covariance):
         ``levels`` (>= 0, the quantity's unit) by each saved time, from the level crossings of the Gaussian
         response (:class:`CrossingExceedance`; rows before ``start`` are 0; docs/peaks.md). Quantities:
 
-        - ``"u:<dof>"``, a displacement (the DOF's unit), ``"delta:<contact>"``, a contact deflection (m), and
-          ``"force:<contact>"``, a contact force (N): the probability of crossing between each pair of
-          consecutive steps, as Monte Carlo takes the peaks (solve with ``deflection_lag=True``, saved every
-          step);
+        - ``"u:<dof>"``, a displacement (the DOF's unit), ``"delta:<contact>"``, a contact deflection (m),
+          ``"force:<contact>"``, a contact force (N), and ``"obs:<observable>"``, an observable (its unit; solve
+          with ``observables``): the probability of crossing between each pair of consecutive steps, as Monte
+          Carlo takes the peaks (solve with ``deflection_lag=True``, saved every step);
         - ``"u:<dof>"`` from a run without ``deflection_lag``: Rice's continuous-time rate, integrated over the
           saved times; needs the DOF's joint displacement-velocity covariance (solve with ``covariance_dofs``
           including it). Save every few steps, and far more often than ``std / |d mean / dt|`` where the
@@ -162,13 +163,13 @@ class MomentResult(_Labelled, _Covariance):
         )
 
         if not isinstance(quantity, str):
-            raise ValueError(f"`quantity` must be a name 'u:<dof>', 'delta:<contact>' or 'force:<contact>', got "
-                             f"{type(quantity).__name__}")  # fmt: skip
+            raise ValueError(f"`quantity` must be a name 'u:<dof>', 'delta:<contact>', 'force:<contact>' or "
+                             f"'obs:<observable>', got {type(quantity).__name__}")  # fmt: skip
         kind, _, name = quantity.partition(":")
-        if kind not in ("u", "delta", "force"):
+        if kind not in ("u", "delta", "force", "obs"):
             raise ValueError(
-                "`quantity` must be a displacement 'u:<dof>', a contact deflection 'delta:<contact>' or a contact "
-                f"force 'force:<contact>', got {quantity!r}"
+                "`quantity` must be a displacement 'u:<dof>', a contact deflection 'delta:<contact>', a contact "
+                f"force 'force:<contact>' or an observable 'obs:<observable>', got {quantity!r}"
             )
         try:
             a = np.asarray(levels, dtype=np.float64)
@@ -187,8 +188,8 @@ class MomentResult(_Labelled, _Covariance):
                     f"{list(self.covariance_dofs) or 'none'})"
                 )
         else:
-            i = self.contact(name)
-            if self.cov_delta_lag is None:
+            i = self.observable(name) if kind == "obs" else self.contact(name)
+            if (self.cov_obs_lag if kind == "obs" else self.cov_delta_lag) is None:
                 raise ValueError(
                     f"the peak of {quantity!r} needs each step's covariance with the step before: solve with "
                     "`deflection_lag=True` (and save_every=1)"
@@ -217,6 +218,8 @@ class MomentResult(_Labelled, _Covariance):
         else:
             if kind == "u":
                 mean, std, lag = self.mean_u[:, i], self.std_u[:, i], self.cov_u_lag[:, i]
+            elif kind == "obs":
+                mean, std, lag = self.mean_obs[:, i], self.std_obs[:, i], self.cov_obs_lag[:, i]
             else:
                 mean, std, lag = self.mean_delta[:, i], self.std_delta[:, i], self.cov_delta_lag[:, i]
             if kind == "force":
@@ -299,6 +302,7 @@ class MomentResult(_Labelled, _Covariance):
             covariance_dofs=tuple(covariance_dofs),
             cov_delta_lag=saved.delta_lag,
             cov_u_lag=saved.u_lag,
+            cov_obs_lag=saved.obs_lag,
         )
 
 
@@ -341,8 +345,8 @@ class PeakExceedance(NamedTuple):
 def every_nth_save(result: MomentResult, n: int) -> MomentResult:
     """``result`` at every ``n``-th saved time (first included). The per-block solver diagnostics
     (``iterations``, ``residual``, ``converged``) are reduced over the ``n`` blocks merged into each, so that
-    a step that did not converge is not dropped with its block; ``cov_delta_lag`` and ``cov_u_lag``
-    (covariances with the step before) are dropped for n > 1."""
+    a step that did not converge is not dropped with its block; the covariances with the step before
+    (``cov_delta_lag``, ``cov_u_lag``, ``cov_obs_lag``) are dropped for n > 1."""
     if (len(result.times) - 1) % n:
         raise ValueError(f"{len(result.times) - 1} saved blocks cannot be merged by {n}")
     out = jax.tree.map(lambda a: a[::n], result)
@@ -360,9 +364,8 @@ def every_nth_save(result: MomentResult, n: int) -> MomentResult:
         ),
     )
     if n > 1 and result.cov_delta_lag is not None:  # a lag of one step no longer pairs the kept times
-        out = eqx.tree_at(
-            lambda r: (r.cov_delta_lag, r.cov_u_lag), out, (None, None), is_leaf=lambda x: x is None
-        )
+        lags = lambda r: (r.cov_delta_lag, r.cov_u_lag, r.cov_obs_lag)  # noqa: E731
+        out = eqx.tree_at(lags, out, (None, None, None), is_leaf=lambda x: x is None)
     return out
 
 
@@ -633,8 +636,7 @@ def _check_loaded_shapes(fields: dict, path) -> None:
         "u": "dof_names", "v": "dof_names", "cov_u_lag": "dof_names", "mean_delta": "contact_names",
         "std_delta": "contact_names", "force_mean": "contact_names", "force_std": "contact_names",
         "force": "contact_names", "k_e": "contact_names", "f_0": "contact_names", "cov_delta_lag": "contact_names",
-        "mean_obs": "observable_names",
-        "std_obs": "observable_names",
+        "mean_obs": "observable_names", "std_obs": "observable_names", "cov_obs_lag": "observable_names",
     }  # fmt: skip
     for name, labels in expected.items():
         value = fields.get(name)

@@ -268,22 +268,40 @@ def chain_of_18(varying_stiffness: bool):
                      contacts=pg.Contacts(g, [1000.0, 800.0], [0.0, 0.0], names=["a", "b"]))  # fmt: skip
 
 
+def moving_observables(n: int) -> pg.Observables:
+    """Two observables y = C(t) u whose rows move with time (as the ring's contact point does), with an offset
+    (which does not enter a covariance)."""
+    w = 2 * np.pi * 4.0
+    base = np.zeros((2, n))
+    base[0, 0], base[1, -1], base[1, n // 2] = 1.0, 0.5, -1.0
+
+    def matrix(t):
+        return jnp.asarray(base) * (1.0 + 0.4 * jnp.sin(w * t)) + 0.3 * jnp.cos(w * t) * jnp.eye(2, n, k=1)
+
+    return pg.Observables(matrix, names=["p", "q"], offset=[0.01, -0.02])
+
+
 @pytest.mark.parametrize("which", ["turning pair", "chain", "chain, varying K"])
 def test_deflection_lag_is_the_covariance_with_the_step_before(which):
-    """cov_delta_lag and cov_u_lag from solve_moments(deflection_lag=True) against g(t1)^T Phi P0 g(t0) and the
-    diagonal of [I 0] Phi P0 [I 0]^T, with SL's full covariance P0 at the step's start and the one-step map Phi
-    of the linear system taken column by column from deterministic one-step runs of pg.simulate (unit initial
-    states, minus the run from rest); for each of the three step paths (a small system's dense map, the
-    contact-free map formed once, a Woodbury correction per step). every_nth_save drops the lags (they no
-    longer pair the kept times)."""
+    """cov_delta_lag, cov_u_lag and cov_obs_lag from solve_moments(deflection_lag=True) against
+    g(t1)^T L g(t0), the diagonal of L and C(t1) L C(t0)^T (observables whose rows move), where
+    L = [I 0] Phi P0 [I 0]^T, with SL's full covariance P0 at the step's start and the one-step map Phi of the
+    linear system taken column by column from deterministic one-step runs of pg.simulate (unit initial states,
+    minus the run from rest); for each of the three step paths (a small system's dense map, the contact-free
+    map formed once, a Woodbury correction per step). every_nth_save drops the lags (they no longer pair the
+    kept times)."""
     from pgtjax._results import every_nth_save
 
     system = {"turning pair": turning_pair, "chain": lambda: chain_of_18(False),
               "chain, varying K": lambda: chain_of_18(True)}[which]()  # fmt: skip
     n, dt = system.n_dof, 1e-3
-    sl = pg.solve_moments(system, dt=dt, n_steps=30, covariance_dofs="all", deflection_lag=True)
+    observables = moving_observables(n)
+    sl = pg.solve_moments(
+        system, dt=dt, n_steps=30, covariance_dofs="all", deflection_lag=True, observables=observables
+    )
     assert sl.cov_delta_lag.shape == (31, 2) and sl.cov_delta_lag.dtype == jnp.float64
     assert sl.cov_u_lag.shape == (31, n) and sl.cov_u_lag.dtype == jnp.float64
+    assert sl.cov_obs_lag.shape == (31, 2) and sl.cov_obs_lag.dtype == jnp.float64
     np.testing.assert_array_equal(np.asarray(sl.cov_delta_lag[0]), 0.0)
     np.testing.assert_array_equal(np.asarray(sl.cov_u_lag[0]), 0.0)
     for k in (1, 30):
@@ -305,11 +323,14 @@ def test_deflection_lag_is_the_covariance_with_the_step_before(which):
         np.testing.assert_allclose(
             np.asarray(sl.cov_u_lag[k]), np.diag(lag), rtol=1e-8, atol=1e-12 * np.abs(lag).max()
         )
-    plain = pg.solve_moments(system, dt=dt, n_steps=30)
-    assert plain.cov_delta_lag is None and plain.cov_u_lag is None
+        c0, c1 = (np.asarray(observables(t)) for t in (t0, t0 + dt))
+        np.testing.assert_allclose(np.asarray(sl.cov_obs_lag[k]), np.diag(c1 @ lag @ c0.T), rtol=1e-8)
+    plain = pg.solve_moments(system, dt=dt, n_steps=30, observables=observables)
+    assert plain.cov_delta_lag is None and plain.cov_u_lag is None and plain.cov_obs_lag is None
     np.testing.assert_array_equal(np.asarray(plain.std_u), np.asarray(sl.std_u))  # the run itself unchanged
+    np.testing.assert_array_equal(np.asarray(plain.std_obs), np.asarray(sl.std_obs))
     halved = every_nth_save(sl, 2)
-    assert halved.cov_delta_lag is None and halved.cov_u_lag is None
+    assert halved.cov_delta_lag is None and halved.cov_u_lag is None and halved.cov_obs_lag is None
     assert every_nth_save(sl, 1).cov_delta_lag is not None and every_nth_save(sl, 1).cov_u_lag is not None
 
 
@@ -322,24 +343,30 @@ def test_sl_contact_peaks_under_a_varying_mesh_stiffness_match_monte_carlo(dt):
     With a fine step (omega dt = 0.06) and with a step that does not resolve the oscillator (omega dt = 3.1),
     where Rice's continuous-time rate from the velocity is off by a factor of 5 and more (asserted): the
     estimate counts crossings between consecutive steps, as Monte Carlo takes the peaks. The same for the
-    displacement of the DOF (its own step lag, here equal to the deflection's). The moving barrier matters:
+    displacement of the DOF (its own step lag, here equal to the deflection's) and for an observable
+    (1 + 0.3 sin(2 pi 3 t)) x, whose row moves, with an offset. The moving barrier matters:
     with the fine step the deflection's estimate at the mean stiffness's barrier F / k0 (about half the truth)
     fails the same test."""
     system = mesh_oscillator()
+    observables = pg.Observables(lambda t: jnp.reshape(1.0 + 0.3 * jnp.sin(2 * np.pi * 3.0 * t), (1, 1)),
+                                 names=["y"], offset=[0.001])  # fmt: skip
     n_steps = 3000 if dt < 0.01 else 600
-    sl = pg.solve_moments(system, dt=dt, n_steps=n_steps, deflection_lag=True, covariance_dofs="all")
+    sl = pg.solve_moments(system, dt=dt, n_steps=n_steps, deflection_lag=True, covariance_dofs="all",
+                          observables=observables)  # fmt: skip
     k0 = n_steps // 3
     start = float(sl.times[k0])
     scales = {
         "delta:c": float(jnp.max(sl.std_delta[k0:, 0])),
         "force:c": float(jnp.max(sl.force_std[k0:, 0])),
         "u:x": float(jnp.max(sl.std_u[k0:, 0])),
+        # its std varies by +-30 %: levels in its largest std are rarely met
+        "obs:y": float(jnp.mean(sl.std_obs[k0:, 0]) + jnp.max(sl.std_obs[k0:, 0])) / 2,
     }
     sigmas = np.array([2.0, 3.5, 4.0])
     peaks = {q: np.concatenate([[0.0], s * sigmas, [20 * s]]) for q, s in scales.items()}
     mc = pg.monte_carlo(system, n_samples=40_000, key=jax.random.key(3), dt=dt, n_steps=n_steps, save_every=k0,
                         peaks=peaks, peak_start=start, histogram_times=[float(sl.times[-1])],
-                        progress=False)  # fmt: skip
+                        observables=observables, progress=False)  # fmt: skip
     tail = slice(1, 3)
 
     def agrees(estimate, p_mc, se):
@@ -410,6 +437,8 @@ def test_sl_contact_peaks_refuse_what_they_cannot_estimate():
     system = mesh_oscillator(clearance=0.01)
     sl = pg.solve_moments(system, dt=1e-3, n_steps=20, deflection_lag=True)
     plain = pg.solve_moments(system, dt=1e-3, n_steps=20)
+    with_y = pg.solve_moments(system, dt=1e-3, n_steps=20, deflection_lag=True,
+                              observables=pg.Observables([[2.0]], names=["y"]))  # fmt: skip
 
     class Cubic(pg.ContactLaw):  # a law that does not give its deflection at a force level
         def force(self, delta, k, b):
@@ -429,6 +458,11 @@ def test_sl_contact_peaks_refuse_what_they_cannot_estimate():
     cases = [
         (lambda: plain.peak_exceedance("delta:c", [0.1]), r"solve with `deflection_lag=True` \(and save_every=1\)"),
         (lambda: sl.peak_exceedance("delta:d", [0.1]), "unknown contact 'd'"),
+        (lambda: sl.peak_exceedance("obs:y", [0.1]), "unknown observable 'y'"),
+        (lambda: plain.peak_exceedance("obs:y", [0.1]), "unknown observable 'y'"),
+        (lambda: eqx.tree_at(lambda r: r.cov_obs_lag, with_y, None).peak_exceedance("obs:y", [0.1]),
+         r"solve with `deflection_lag=True` \(and save_every=1\)"),
+        (lambda: sl.peak_exceedance("velocity:x", [0.1]), "or an observable 'obs:<observable>'"),
         (lambda: sl.peak_exceedance("force:c", [0.1]), "needs the `system` solved"),
         (lambda: sl.peak_exceedance("force:c", [0.1], system=oscillator()), "pass the system that was solved"),
         (lambda: sl.peak_exceedance("force:c", [0.1], system=cubic), "Cubic does not give"),

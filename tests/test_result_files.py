@@ -99,7 +99,7 @@ def _assert_same_result(a, b):
 
 
 def test_deflection_lag_round_trips_with_its_unit(tmp_path):
-    """An SL result with each deflection's and displacement's covariance with the step before
+    """An SL result with each deflection's, displacement's and observable's covariance with the step before
     (solve_moments(deflection_lag=True)) read back equal from .npz and .nc, the .nc variables with their units;
     one without them reads back with None."""
     import xarray as xr
@@ -107,7 +107,9 @@ def test_deflection_lag_round_trips_with_its_unit(tmp_path):
     from pgtjax.models import gear_pair
 
     system = gear_pair.build()
-    with_lag = pg.solve_moments(system, dt=1e-5, n_steps=40, deflection_lag=True)
+    observables = pg.Observables([[1.0, -1.0, 0.0]], names=["y1_minus_y2"])
+    with_lag = pg.solve_moments(system, dt=1e-5, n_steps=40, deflection_lag=True, observables=observables)
+    assert with_lag.cov_obs_lag.shape == (41, 1) and with_lag.cov_obs_lag.dtype == np.float64
     assert with_lag.cov_delta_lag.shape == (41, 1) and with_lag.cov_delta_lag.dtype == np.float64
     assert with_lag.cov_u_lag.shape == (41, system.n_dof) and with_lag.cov_u_lag.dtype == np.float64
     for suffix in (".npz", ".nc"):
@@ -115,12 +117,14 @@ def test_deflection_lag_round_trips_with_its_unit(tmp_path):
         _assert_same_result(with_lag, back)
     with xr.open_dataset(tmp_path / "sl.nc", engine="h5netcdf") as ds:
         assert ds["cov_delta_lag"].dims == ("time", "contact") and ds["cov_delta_lag"].attrs["units"] == "m^2"
+        assert ds["cov_obs_lag"].dims == ("time", "observable")
+        assert ds["cov_obs_lag"].attrs["units"] == "the observable's, squared"
         assert (
             ds["cov_u_lag"].dims == ("time", "dof")
             and ds["cov_u_lag"].attrs["units"] == "see dof_unit, squared"
         )
     back, _ = pg.load_results(pg.save_results(tmp_path / "plain.npz", small_result()))
-    assert back.cov_delta_lag is None and back.cov_u_lag is None
+    assert back.cov_delta_lag is None and back.cov_u_lag is None and back.cov_obs_lag is None
 
 
 def test_netcdf_round_trip_and_labelled_dataset(tmp_path):
