@@ -1,8 +1,9 @@
 """Peaks of a Gaussian response from its moments: Rice's level crossings, for SL's counterpart of Monte
 Carlo's peak counts (:meth:`pgtjax.MomentResult.peak_exceedance`; docs/peaks.md). Two forms: Rice's
 continuous-time rate (a displacement, from the displacement-velocity covariance) and its discrete-time
-counterpart, the probability of crossing between consecutive steps (a contact deflection or force, from the
-covariance of each step with the one before: the peaks Monte Carlo takes, whatever the step resolves).
+counterpart, the probability of crossing between consecutive steps (a displacement, contact deflection or
+force, or an observable, from the covariance of each step with the one before: the peaks Monte Carlo takes,
+whatever the step resolves).
 
 For a Gaussian process ``X(t)`` with the joint moments of ``(X, dX/dt)`` at each time, the mean rate at which
 ``|X|`` reaches a level ``a`` (up-crossings of ``+a`` and down-crossings of ``-a``) is Rice's expected rate of

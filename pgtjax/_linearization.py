@@ -925,7 +925,8 @@ def _solve_moments_jit(
         t1 = t0 + dt * step_number
         obs_rows = None
         if c.obs_matrix is not None:  # C(t) at the step's two ends, each evaluated once
-            obs_rows = (c.obs_matrix, observables(t1))
+            # named as the save's C(t) is: kept by the checkpointed reverse pass, not evaluated again there
+            obs_rows = (c.obs_matrix, checkpoint_name(observables(t1), _COVARIANCE_NAME))
         if constant_path:
             new, info = _moment_step_constant(
                 system, c, t1, dt, criterion, integrator, rtol, max_iter, prop, deflection_lag, obs_rows

@@ -130,7 +130,7 @@ class MomentResult(_Labelled, _Covariance):
         return _gaussian_gap_probability(self.mean_delta, self.std_delta, b[None, :])
 
     def peak_exceedance(
-        self, quantity: str, levels, *, start: float | None = None, system=None
+        self, quantity: str, levels, *, start: float | None = None, system=None, method: str = "auto"
     ) -> CrossingExceedance:
         """SL's counterpart of :meth:`MonteCarloResult.peak_exceedance`: the probability that a quantity's peak
         (its largest magnitude from ``start``, s, the nearest saved time; default the first) has reached each of
@@ -139,13 +139,17 @@ class MomentResult(_Labelled, _Covariance):
 
         - ``"u:<dof>"``, a displacement (the DOF's unit), ``"delta:<contact>"``, a contact deflection (m),
           ``"force:<contact>"``, a contact force (N), and ``"obs:<observable>"``, an observable (its unit; solve
-          with ``observables``): the probability of crossing between each pair of consecutive steps, as Monte
-          Carlo takes the peaks (solve with ``deflection_lag=True``, saved every step);
-        - ``"u:<dof>"`` from a run without ``deflection_lag``: Rice's continuous-time rate, integrated over the
-          saved times; needs the DOF's joint displacement-velocity covariance (solve with ``covariance_dofs``
-          including it). Save every few steps, and far more often than ``std / |d mean / dt|`` where the
-          response is nearly deterministic; the step must resolve the response (its velocity stands for the
-          displacement's rate), else the estimate is far off (docs/peaks.md).
+          with ``observables``), by ``method="steps"``: the probability of crossing between each pair of
+          consecutive steps, as Monte Carlo takes the peaks (solve with ``deflection_lag=True``, saved every
+          step);
+        - ``"u:<dof>"`` also by ``method="rice"``: Rice's continuous-time rate, integrated over the saved times;
+          needs the DOF's joint displacement-velocity covariance (solve with ``covariance_dofs`` including it).
+          Save every few steps, and far more often than ``std / |d mean / dt|`` where the response is nearly
+          deterministic; the step must resolve the response (its velocity stands for the displacement's rate),
+          else the estimate is far off (docs/peaks.md).
+
+        ``method="auto"`` (default) takes the steps wherever the result has the step lags (``cov_u_lag`` for a
+        displacement), else Rice's rate for a displacement.
 
         A force level ``F``: ``|f| >= F`` puts the deflection outside barriers that move with the contact's
         inputs (``b + F / k(t)`` for :class:`pgtjax.Backlash`). Pass the ``system`` solved (its law must
@@ -177,23 +181,25 @@ class MomentResult(_Labelled, _Covariance):
             a = None
         if a is None or a.ndim != 1 or a.size == 0 or not np.all(np.isfinite(a)) or np.any(a < 0):
             raise ValueError(f"`levels` must be a 1-D array of finite levels >= 0, got {levels!r}")
-        rice = kind == "u" and self.cov_u_lag is None
-        if kind == "u":
-            i = self.dof(name)
-            if rice and name not in self.covariance_dofs:
-                raise ValueError(
-                    f"the peak of {quantity!r} needs each step's covariance with the step before (solve with "
-                    "`deflection_lag=True` and save_every=1) or, for Rice's rate, its displacement-velocity "
-                    f"covariance (solve with `covariance_dofs` including {name!r}; saved: "
-                    f"{list(self.covariance_dofs) or 'none'})"
-                )
-        else:
-            i = self.observable(name) if kind == "obs" else self.contact(name)
-            if (self.cov_obs_lag if kind == "obs" else self.cov_delta_lag) is None:
-                raise ValueError(
-                    f"the peak of {quantity!r} needs each step's covariance with the step before: solve with "
-                    "`deflection_lag=True` (and save_every=1)"
-                )
+        if method not in ("auto", "steps", "rice"):
+            raise ValueError(f"`method` must be 'auto', 'steps' or 'rice', got {method!r}")
+        if method == "rice" and kind != "u":
+            raise ValueError(f"`method='rice'` estimates displacements ('u:<dof>') only, got {quantity!r}")
+        lags = {"u": self.cov_u_lag, "obs": self.cov_obs_lag}.get(kind, self.cov_delta_lag)
+        rice = method == "rice" or (method == "auto" and kind == "u" and lags is None)
+        i = {"u": self.dof, "obs": self.observable}.get(kind, self.contact)(name)
+        if rice and name not in self.covariance_dofs:
+            raise ValueError(
+                f"the peak of {quantity!r} needs each step's covariance with the step before (solve with "
+                "`deflection_lag=True` and save_every=1) or, for Rice's rate, its displacement-velocity "
+                f"covariance (solve with `covariance_dofs` including {name!r}; saved: "
+                f"{list(self.covariance_dofs) or 'none'})"
+            )
+        if not rice and lags is None:
+            raise ValueError(
+                f"the peak of {quantity!r} needs each step's covariance with the step before: solve with "
+                "`deflection_lag=True` (and save_every=1)"
+            )
         times = self.times
         n_times = times.shape[0]
         first = 0
@@ -217,11 +223,12 @@ class MomentResult(_Labelled, _Covariance):
             at_start = exceedance_at_start(a, mean[first], std[first])[None, :]
         else:
             if kind == "u":
-                mean, std, lag = self.mean_u[:, i], self.std_u[:, i], self.cov_u_lag[:, i]
+                mean, std = self.mean_u[:, i], self.std_u[:, i]
             elif kind == "obs":
-                mean, std, lag = self.mean_obs[:, i], self.std_obs[:, i], self.cov_obs_lag[:, i]
+                mean, std = self.mean_obs[:, i], self.std_obs[:, i]
             else:
-                mean, std, lag = self.mean_delta[:, i], self.std_delta[:, i], self.cov_delta_lag[:, i]
+                mean, std = self.mean_delta[:, i], self.std_delta[:, i]
+            lag = lags[:, i]
             if kind == "force":
                 upper, lower = self._force_barriers(quantity, i, jnp.asarray(a), system)
             else:
@@ -363,8 +370,10 @@ def every_nth_save(result: MomentResult, n: int) -> MomentResult:
             merged(result.converged, jnp.all),
         ),
     )
-    if n > 1 and result.cov_delta_lag is not None:  # a lag of one step no longer pairs the kept times
-        lags = lambda r: (r.cov_delta_lag, r.cov_u_lag, r.cov_obs_lag)  # noqa: E731
+    lags = lambda r: (r.cov_delta_lag, r.cov_u_lag, r.cov_obs_lag)  # noqa: E731
+    if n > 1 and any(
+        lag is not None for lag in lags(result)
+    ):  # a one-step lag no longer pairs the kept times
         out = eqx.tree_at(lags, out, (None, None, None), is_leaf=lambda x: x is None)
     return out
 

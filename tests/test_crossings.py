@@ -386,44 +386,58 @@ def test_sl_contact_peaks_under_a_varying_mesh_stiffness_match_monte_carlo(dt):
         fixed = sl.peak_exceedance("delta:c", scales["force:c"] * sigmas / OMEGA**2, start=start)
         assert not agrees(np.asarray(fixed.probability[-1]), p_force, se_force)
     else:  # the continuous-time rate of the same deflection (= the DOF), from the run without the step lags
-        no_lags = eqx.tree_at(lambda r: (r.cov_delta_lag, r.cov_u_lag), sl, (None, None))
         rice = np.asarray(
-            no_lags.peak_exceedance("u:x", scales["delta:c"] * sigmas, start=start).probability[-1]
+            sl.peak_exceedance("u:x", scales["delta:c"] * sigmas, start=start, method="rice").probability[-1]
         )
         p_delta = np.asarray(mc.peak_exceedance("delta:c").probability[0, :3])
         assert np.all(rice[tail] > 5 * p_delta[tail]), (rice, p_delta)
 
 
 @pytest.mark.parametrize("varying_stiffness", [False, True])
-def test_displacement_peak_between_steps_has_the_gradient_of_a_central_difference(varying_stiffness):
-    """d P(peak of u >= a) / d log s, s scaling the chain's stiffness, counted between steps (cov_u_lag),
-    against a central difference, on the two step paths of a larger model (the contact-free map formed once,
-    a Woodbury correction per step), whose derivative rules differ; jitted, as a design objective runs."""
+def test_displacement_and_observable_peaks_between_steps_have_the_gradient_of_a_central_difference(
+    varying_stiffness,
+):
+    """d P(peak >= a) / d log s, s scaling the chain's stiffness and an observable's moving rows, counted
+    between steps (cov_u_lag, cov_obs_lag), against a central difference, on the two step paths of a larger
+    model (the contact-free map formed once, a Woodbury correction per step), whose derivative rules differ;
+    jitted, as a design objective runs."""
     base = chain_of_18(varying_stiffness)
     dof = base.dof_names[8]
 
-    def system(log_s):
-        return eqx.tree_at(lambda sy: sy.stiffness, base, _scaled(base.stiffness, jnp.exp(log_s)))
+    class Rows(eqx.Module):  # C(t) = s (1 + 0.4 sin(w t)) e_3^T: moving, and a function of the variable
+        scale: jax.Array
+
+        def __call__(self, t):
+            return self.scale * (1.0 + 0.4 * jnp.sin(2 * np.pi * 4.0 * t)) * jnp.eye(1, base.n_dof, k=3)
 
     def solve(log_s):
-        return pg.solve_moments(system(log_s), dt=2e-3, n_steps=150, deflection_lag=True)
+        system = eqx.tree_at(lambda sy: sy.stiffness, base, _scaled(base.stiffness, jnp.exp(log_s)))
+        observables = pg.Observables(Rows(jnp.exp(log_s)), names=["y"])
+        return pg.solve_moments(system, dt=2e-3, n_steps=150, deflection_lag=True, observables=observables)
 
     ref = solve(0.0)
     i = ref.dof(dof)
-    level = float(jnp.max(jnp.abs(ref.mean_u[:, i])) + 1.5 * jnp.max(ref.std_u[:, i]))
+    level_u = float(jnp.max(jnp.abs(ref.mean_u[:, i])) + 1.5 * jnp.max(ref.std_u[:, i]))
+    level_y = float(jnp.max(jnp.abs(ref.mean_obs[:, 0])) + 2.0 * jnp.max(ref.std_obs[:, 0]))
 
-    def probability(log_s):
-        return solve(log_s).peak_exceedance(f"u:{dof}", [level], start=0.1).probability[-1, 0]
+    def probabilities(log_s):
+        sl = solve(log_s)
+        p_u = sl.peak_exceedance(f"u:{dof}", [level_u], start=0.1).probability[-1, 0]
+        return jnp.stack([p_u, sl.peak_exceedance("obs:y", [level_y], start=0.1).probability[-1, 0]])
 
+    def objective(log_s):  # both probabilities, weighted as a design's objective might (one gradient program)
+        p = probabilities(log_s)
+        return p[0] + 3.7 * p[1], p
+
+    # jitted, as a design runs it; the same program gives the values for the central difference
+    with_values = jax.jit(jax.value_and_grad(objective, has_aux=True))
     x, h = 0.0, 1e-5
-    value, grad = (
-        float(r) for r in jax.jit(jax.value_and_grad(probability))(x)
-    )  # jitted, as a design runs it
-    assert 0.01 < value < 0.99
-    jitted = jax.jit(probability)
-    fd = float((jitted(x + h) - jitted(x - h)) / (2 * h))
-    assert abs(fd) > 1e-3 * value  # the level's probability moves with the stiffness
-    np.testing.assert_allclose(grad, fd, rtol=1e-5)
+    (_, value), grad = with_values(x)
+    value = np.asarray(value)
+    assert np.all((0.01 < value) & (value < 0.99)), value
+    fd = (np.asarray(with_values(x + h)[0][1]) - np.asarray(with_values(x - h)[0][1])) / (2 * h)
+    assert np.all(np.abs(fd) > 1e-3 * value)  # the levels' probabilities move with the variable
+    np.testing.assert_allclose(float(grad), fd[0] + 3.7 * fd[1], rtol=1e-5)
 
 
 def _scaled(stiffness, factor):
@@ -463,6 +477,10 @@ def test_sl_contact_peaks_refuse_what_they_cannot_estimate():
         (lambda: eqx.tree_at(lambda r: r.cov_obs_lag, with_y, None).peak_exceedance("obs:y", [0.1]),
          r"solve with `deflection_lag=True` \(and save_every=1\)"),
         (lambda: sl.peak_exceedance("velocity:x", [0.1]), "or an observable 'obs:<observable>'"),
+        (lambda: sl.peak_exceedance("delta:c", [0.1], method="rice"), "estimates displacements .* only"),
+        (lambda: sl.peak_exceedance("u:x", [0.1], method="exact"), "`method` must be 'auto', 'steps' or"),
+        (lambda: sl.peak_exceedance("u:x", [0.1], method="rice"), "solve with `covariance_dofs` including 'x'"),
+        (lambda: plain.peak_exceedance("u:x", [0.1], method="steps"), r"`deflection_lag=True` \(and save_every"),
         (lambda: sl.peak_exceedance("force:c", [0.1]), "needs the `system` solved"),
         (lambda: sl.peak_exceedance("force:c", [0.1], system=oscillator()), "pass the system that was solved"),
         (lambda: sl.peak_exceedance("force:c", [0.1], system=cubic), "Cubic does not give"),

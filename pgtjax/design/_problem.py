@@ -40,8 +40,9 @@ class Response(eqx.Module):
     large models, for 0.6 to 1.5 forward runs more per gradient, measured); ``covariance_dofs``: DOF names (or
     ``"all"``) whose joint covariance SL keeps, for objectives that read it (e.g. a :class:`Custom` one with
     ``result.peak_exceedance``, Rice's estimate of a displacement's peak); ``deflection_lag``: SL also keeps
-    each contact deflection's and displacement's covariance with the step before (needs ``save_every = 1``),
-    for SL's peak probability of a displacement, contact deflection or force counted between steps."""
+    each contact deflection's, displacement's and observable's covariance with the step before (needs
+    ``save_every = 1``), for SL's peak probability of any of them, or of a contact force, counted between
+    steps."""
 
     build: Callable = eqx.field(static=True)
     dt: float = eqx.field(static=True)
