@@ -814,7 +814,9 @@ def solve_moments(
     per_save = (4 + deflection_lag) * system.n_dof + (6 + deflection_lag) * system.n_contacts
     per_save += (2 + deflection_lag) * n_obs
     per_save += len(cov_index) ** 2 + 3
-    check_memory("solve_moments", n_steps // save_every + 1, per_save)
+    # the step lags pair every step with the one before: saved every step
+    knob = "`deflection_lag=False`, then raise `save_every`" if deflection_lag else "raise `save_every`"
+    check_memory("solve_moments", n_steps // save_every + 1, per_save, knob)
     check_contact_stiffness_over_time(system, t0, dt, n_steps)
     check_stability(system, t0, horizon=None if isinstance(dt, jax.core.Tracer) else n_steps * float(dt))
     criterion = as_criterion(criterion)

@@ -528,9 +528,10 @@ def validate_time_grid(dt, n_steps, save_every: int = 1, t0=0.0) -> tuple[int, i
     return n_steps, save_every
 
 
-def check_memory(what: str, n_saved: int, values_per_save: int, knob: str = "save_every") -> None:
+def check_memory(what: str, n_saved: int, values_per_save: int, knob: str = "raise `save_every`") -> None:
     """``ValueError`` before a run whose saved results (``n_saved`` times ``values_per_save`` float64
-    numbers) would not fit in half of this machine's memory (an out-of-memory error from XLA otherwise)."""
+    numbers) would not fit in half of this machine's memory (an out-of-memory error from XLA otherwise);
+    ``knob``: what the message suggests raising."""
     needed = 8.0 * n_saved * values_per_save
     try:
         available = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
@@ -540,7 +541,7 @@ def check_memory(what: str, n_saved: int, values_per_save: int, knob: str = "sav
         raise ValueError(
             f"{what}: the saved results would take {needed / 1e9:.3g} GB ({n_saved} saved times x "
             f"{values_per_save} numbers), more than half of this machine's {available / 1e9:.3g} GB; save less "
-            f"often (raise `{knob}`) or shorten the run (`n_steps`)"
+            f"often ({knob}) or shorten the run (`n_steps`)"
         )
 
 

@@ -166,6 +166,11 @@ API = [
     ("n_steps bool", lambda: sl(n_steps=True, save_every=1), "`n_steps`"),
     ("n_steps not a multiple", lambda: sl(n_steps=45), "`n_steps`.*`save_every`"),
     ("n_steps 10^12, SL", lambda: sl(n_steps=10**12, save_every=1), "raise `save_every`"),
+    (
+        "n_steps 10^12, SL with the step lags",
+        lambda: sl(n_steps=10**12, save_every=1, deflection_lag=True),
+        r"save less often \(`deflection_lag=False`, then raise `save_every`\)",
+    ),
     ("n_steps 10^12, simulate", lambda: sim(n_steps=10**12, save_every=1), "raise `save_every`"),
     ("n_steps beyond 2^53", lambda: sl(n_steps=2**70, save_every=2**69), "`n_steps`"),
     ("save_every zero", lambda: sl(save_every=0), "`save_every`"),
