@@ -130,6 +130,16 @@ CASES = [
         "--peak-forces",
     ),  # fmt: skip
     (
+        "peak start without peak forces",
+        lambda d: ["planetary", "--peak-start", "0.5", "--out", str(d / "o")],
+        "--peak-start",
+    ),  # fmt: skip
+    (
+        "peak start negative",
+        lambda d: ["planetary", "--peak-forces", "20", "--peak-start", "-1", "--out", str(d / "o")],
+        "--peak-start",
+    ),  # fmt: skip
+    (
         "peak forces negative",
         lambda d: ["planetary", "--peak-forces", "-3", "--out", str(d / "o")],
         "--peak-forces",

@@ -528,6 +528,24 @@ def test_study_grids_outputs_and_symmetry_zero_dofs(tmp_path):
     # sample's magnitude at the end (the peaks' median is at least the end's smallest |mean| - 3 std)
     peaks = full["peak_meshing_forces"]
     assert set(peaks["per_mesh"]) == set(sl.contact_names) and peaks["n_samples"] == 200
+    assert st["peak_start_s"] == 0.0 and "from t = 0 s" in peaks["note"]
+    # peaks counted from a later save (the same samples): over a shorter window, never larger
+    saved = np.asarray(mc.times)
+    later = study.run_study(p, n_samples=200, periods=0.02, n_saves=4, sl_refine=3, key=jax.random.key(2),
+                            progress=False, peak_force_bins=40, peak_start=0.9 * saved[1])  # fmt: skip
+    assert later.settings["peak_start_s"] == saved[1] and later.mc.peak_start == saved[1]
+    assert np.all(np.asarray(later.mc.histogram_times) >= saved[1])
+    np.testing.assert_array_equal(np.asarray(later.mc.std_u), np.asarray(mc.std_u))
+    assert f"from t = {saved[1]:g} s" in study.peak_force_summary(later)["note"]
+    for q in mc.peak_edges:
+        shorter, whole = later.mc.peak_exceedance(q), mc.peak_exceedance(q)
+        np.testing.assert_array_equal(shorter.levels, whole.levels)
+        assert np.all(shorter.probability[-1] <= whole.probability[-1])
+        assert np.all(later.sl_peaks[q]["probability"][-1] <= result.sl_peaks[q]["probability"][-1] + 1e-15)
+    assert any(
+        np.any(later.mc.peak_exceedance(q).probability[-1] < mc.peak_exceedance(q).probability[-1])
+        for q in mc.peak_edges
+    )  # the start-up's peaks are left out
     end = np.abs(np.asarray(mc.force_mean[-1])) - 3 * np.asarray(mc.force_std[-1])
     for k, name in enumerate(sl.contact_names):
         entry = peaks["per_mesh"][name]
@@ -562,6 +580,10 @@ def test_study_grids_outputs_and_symmetry_zero_dofs(tmp_path):
         (dict(criteria=()), "criteria"),
         (dict(peak_force_bins=10), "peak_force_bins"),  # without samples
         (dict(peak_force_bins=-1, n_samples=4), "peak_force_bins"),
+        (dict(peak_start=0.01), "`peak_start` sets where the peaks are counted from"),  # without bins
+        (dict(peak_start=-0.01, peak_force_bins=10, n_samples=4), "`peak_start` must be a time >= 0"),
+        (dict(peak_start=float("nan"), peak_force_bins=10, n_samples=4), "`peak_start` must be a time >= 0"),
+        (dict(peak_start=100.0, peak_force_bins=10, n_samples=4), "nearest the last Monte Carlo save"),
     ]:
         with pytest.raises(ValueError, match=match):
             study.run_study(p, **{"n_samples": 0, "periods": 0.02, **bad})

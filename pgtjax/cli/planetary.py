@@ -24,6 +24,7 @@ from ._types import (
     csv_ints,
     csv_positive_floats,
     element_count,
+    nonneg_float,
     nonneg_int,
     positive_float,
     positive_int,
@@ -97,6 +98,14 @@ def _add_planetary_options(p: argparse.ArgumentParser, quick: bool) -> None:
         "(default 0: off)",
     )
     p.add_argument(
+        "--peak-start",
+        type=nonneg_float,
+        default=0.0,
+        metavar="SECONDS",
+        help="with --peak-forces: count the peaks from this time on (the nearest Monte Carlo save), e.g. after a "
+        "start-up transient (default 0: from the start)",
+    )
+    p.add_argument(
         "--chunk-size",
         type=positive_int,
         default=None,
@@ -131,6 +140,8 @@ def _run_planetary(args) -> int:
         raise ValueError("`--resume` continues a Monte Carlo; it needs `--samples` >= 2")
     if args.peak_forces and not args.samples:
         raise ValueError("`--peak-forces` counts Monte Carlo samples; it needs `--samples` >= 2")
+    if args.peak_start and not args.peak_forces:
+        raise ValueError("`--peak-start` sets where the peaks are counted from; it needs `--peak-forces` > 0")
     started = time.time()
     process = start_processes(args)  # before any JAX computation
     params, data = _params(args)
@@ -153,6 +164,7 @@ def _run_planetary(args) -> int:
         checkpoint_every=args.checkpoint_every,
         resume=args.resume,
         peak_force_bins=args.peak_forces,
+        peak_start=args.peak_start,
     )
     if args.samples:  # before any work: the checkpoint's folder, and a checkpoint to resume of this very run
         try:

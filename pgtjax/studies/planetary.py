@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import numbers
 from pathlib import Path
 
 import equinox as eqx
@@ -145,11 +146,12 @@ def run_study(
     checkpoint_every=1,
     resume=False,
     peak_force_bins=0,
+    peak_start=0.0,
 ) -> PlanetaryStudy:
     """SL (each criterion) and MC over ``periods`` carrier periods; ``n_samples = 0`` skips MC.
     ``checkpoint``, ``checkpoint_every``, ``resume``: as in :func:`pgtjax.monte_carlo`. ``peak_force_bins``
-    > 0: MC also counts every meshing force's peak (its largest magnitude from the start) in that many bins
-    (:func:`peak_force_bins_of`).
+    > 0: MC also counts every meshing force's peak (its largest magnitude from ``peak_start``, s, the nearest
+    Monte Carlo save; default the start) in that many bins (:func:`peak_force_bins_of`).
 
     MC is saved about ``n_saves`` times and SL ``sl_refine`` times as often (:func:`_grid`;
     :meth:`PlanetaryStudy.sl_on_mc_grid` gives SL on MC's grid)."""
@@ -162,6 +164,14 @@ def run_study(
     check_count("peak_force_bins", peak_force_bins, minimum=0)
     if peak_force_bins and not n_samples:
         raise ValueError("`peak_force_bins` counts Monte Carlo samples: it needs `n_samples` >= 2")
+    if (
+        isinstance(peak_start, bool)
+        or not isinstance(peak_start, numbers.Real)
+        or not 0.0 <= peak_start < np.inf
+    ):
+        raise ValueError(f"`peak_start` must be a time >= 0 (s), got {peak_start!r}")
+    if peak_start and not peak_force_bins:
+        raise ValueError("`peak_start` sets where the peaks are counted from: it needs `peak_force_bins` > 0")
     if n_samples != 0:  # Monte Carlo needs two samples for a standard deviation
         try:
             check_count("n_samples", n_samples, minimum=2)
@@ -174,13 +184,19 @@ def run_study(
             n_samples, chunk_size, checkpoint, resume, key=key, checkpoint_every=checkpoint_every
         )
     system, kw, mc_every, sl_every = _setup(p, dt, periods, n_saves, sl_refine)
+    saved = dt * mc_every * np.arange(kw["n_steps"] // mc_every + 1)  # s, Monte Carlo's saved times
+    first_peak = int(np.argmin(np.abs(saved - peak_start)))  # the peaks' start: the nearest save
+    if peak_force_bins and first_peak == len(saved) - 1:
+        raise ValueError(
+            f"`peak_start` ({peak_start:g} s) is nearest the last Monte Carlo save ({saved[-1]:g} s): the peaks "
+            f"need saved times after it (saves every {saved[1]:g} s)"
+        )
     sl = {c: solve_moments(system, criterion=c, save_every=sl_every, **kw) for c in criteria}
     mc = None
     if n_samples:
         peaks, histogram_times = {}, ()
         if peak_force_bins:
-            saved = dt * mc_every * np.arange(kw["n_steps"] // mc_every + 1)
-            peaks, histogram_times = peak_force_bins_of(sl[criteria[0]], peak_force_bins, saved)
+            peaks, histogram_times = peak_force_bins_of(sl[criteria[0]], peak_force_bins, saved, first_peak)
         mc = monte_carlo(
             system,
             n_samples=n_samples,
@@ -193,11 +209,12 @@ def run_study(
             resume=resume,
             peaks=peaks,
             histogram_times=histogram_times,
+            peak_start=float(saved[first_peak]) if first_peak else None,
             **kw,
         )
     sl_peaks = None
     if peak_force_bins:
-        sl_peaks = sl_peak_estimates(system, kw, criteria[0], mc)
+        sl_peaks = sl_peak_estimates(system, kw, criteria[0], mc, start=float(saved[first_peak]))
     settings = dict(
         n_samples=n_samples,
         periods=periods,
@@ -209,12 +226,16 @@ def run_study(
         sl_refine=mc_every // sl_every,
         peak_force_bins=peak_force_bins,
     )
+    if peak_force_bins:
+        settings["peak_start_s"] = float(saved[first_peak])
     return PlanetaryStudy(p, sl, mc, dt, carrier_period(p), settings, sl_peaks)
 
 
-def sl_peak_estimates(system, kw: dict, criterion: str, mc: MonteCarloResult) -> dict:
+def sl_peak_estimates(
+    system, kw: dict, criterion: str, mc: MonteCarloResult, start: float | None = None
+) -> dict:
     """SL's estimate of each meshing force's peak at the Monte Carlo's peak levels (the bins' upper edges) and
-    histogram times: ``{quantity: {"levels", "probability"}}`` (arrays (n_bins,) and (n_hist, n_bins)), from a run saved every step with ``deflection_lag`` (crossings between steps;
+    histogram times, the peaks taken from ``start`` (s): ``{quantity: {"levels", "probability"}}`` (arrays (n_bins,) and (n_hist, n_bins)), from a run saved every step with ``deflection_lag`` (crossings between steps;
     :meth:`pgtjax.MomentResult.peak_exceedance`)."""
     run = {k: v for k, v in kw.items() if k != "observables"}  # only the meshes are needed, at every step
     sl = solve_moments(system, criterion=criterion, save_every=1, deflection_lag=True, **run)
@@ -222,7 +243,7 @@ def sl_peak_estimates(system, kw: dict, criterion: str, mc: MonteCarloResult) ->
     out = {}
     for quantity, edges in mc.peak_edges.items():
         levels = np.asarray(edges)[1:]  # the edges start at 0 (peak_force_bins_of)
-        estimate = sl.peak_exceedance(quantity, levels, system=system)
+        estimate = sl.peak_exceedance(quantity, levels, system=system, start=start)
         out[quantity] = dict(levels=levels, probability=np.asarray(estimate.probability)[rows])
     return out
 
@@ -233,10 +254,10 @@ PEAK_FORCE_STDS = 8.0
 PEAK_FORCE_TIMES = 20
 
 
-def peak_force_bins_of(sl: MomentResult, bins: int, saved_times) -> tuple[dict, np.ndarray]:
+def peak_force_bins_of(sl: MomentResult, bins: int, saved_times, first: int = 0) -> tuple[dict, np.ndarray]:
     """``(peaks, histogram_times)`` for :func:`pgtjax.monte_carlo`: ``bins`` bins per meshing force from 0 N
     to SL's largest ``|mean| + PEAK_FORCE_STDS std`` over the run (``sl``), and ``PEAK_FORCE_TIMES`` of the
-    Monte Carlo's ``saved_times`` (s), evenly spaced, the last included. A sample whose peak goes beyond that
+    Monte Carlo's ``saved_times`` (s) after the ``first`` (the peaks' start), evenly spaced, the last included. A sample whose peak goes beyond that
     edge is not counted (:func:`peak_force_summary` reports how many were not)."""
     upper = np.max(np.abs(np.asarray(sl.force_mean)) + PEAK_FORCE_STDS * np.asarray(sl.force_std), axis=0)
     peaks = {
@@ -244,7 +265,7 @@ def peak_force_bins_of(sl: MomentResult, bins: int, saved_times) -> tuple[dict, 
         for name, top in zip(sl.contact_names, upper)
     }
     times = np.asarray(saved_times)
-    picks = np.unique(np.round(np.linspace(0, len(times) - 1, PEAK_FORCE_TIMES + 1)[1:]).astype(int))
+    picks = np.unique(np.round(np.linspace(first, len(times) - 1, PEAK_FORCE_TIMES + 1)[1:]).astype(int))
     return peaks, times[picks]
 
 
@@ -277,8 +298,8 @@ def peak_force_summary(study: PlanetaryStudy) -> dict | None:
             entry["sl_reach_probability"] = reach
         per_mesh[quantity.split(":", 1)[1]] = entry
     return dict(
-        note="peak (largest magnitude) of each meshing force of each sample over every step from t = 0 "
-        "to the end of the run; each quantile is the upper edge of the bin where the Monte Carlo's cumulative "
+        note="peak (largest magnitude) of each meshing force of each sample over every step from "
+        f"t = {study.settings.get('peak_start_s', 0.0):g} s to the end of the run; each quantile is the upper edge of the bin where the Monte Carlo's cumulative "
         "count reaches it, so within one bin width above it (null where fewer than 10 samples lie beyond it, "
         "or where it lies beyond the top edge); sl_reach_probability: SL's estimate of the probability "
         "that the peak reaches each quantile stated (1 - the quantile if SL and Monte Carlo agreed; SL counts "
@@ -300,9 +321,9 @@ def _same_peaks(mc: MonteCarloResult, a: str, b: str) -> bool:
 
 
 def peak_force_figure(study: PlanetaryStudy):
-    """The probability that each meshing force's peak (its largest magnitude since t = 0) has reached a level,
-    by the end of the run (solid) and by mid-run (dashed), from the Monte Carlo's peak histograms; None
-    without them."""
+    """The probability that each meshing force's peak (its largest magnitude since the peaks' start) has reached
+    a level, by the end of the run (solid) and by mid-window (dashed), from the Monte Carlo's peak histograms;
+    None without them."""
     mc = study.mc
     if mc is None or not mc.peak_histograms:
         return None
@@ -345,7 +366,8 @@ def peak_force_figure(study: PlanetaryStudy):
         else ""
     )
     fig.suptitle(
-        f"Peak meshing forces (largest magnitude over every step since t = 0): Monte Carlo, "
+        f"Peak meshing forces (largest magnitude over every step since t = {study.settings.get('peak_start_s', 0.0):g} s): "
+        "Monte Carlo, "
         f"{mc.n_samples:,} samples (smallest probability shown {1 / mc.n_samples:.1g}){sl_note}"
     )
     return fig
@@ -906,6 +928,7 @@ SETTING_UNITS = dict(
     sl_save_every="time steps",
     sl_refine="1 (SL saves per MC save)",
     peak_force_bins="1 (count of bins per meshing force's peak histogram; 0: none)",
+    peak_start_s="s (the Monte Carlo save the peaks are counted from)",
 )
 MODES_NOTE = (
     "natural frequencies of the model linearized with every mesh closed at t = 0; the lowest, of type "
@@ -934,7 +957,8 @@ FILE_INDEX = {
     "planetary_mesh_forces_zoom.png": "the meshing forces over 5 mesh periods at mid-run: SL against every MC "
     "save, 95 % error bars",
     "planetary_peak_forces.png": "with --peak-forces: the probability that each meshing force's peak (largest "
-    "magnitude over every step since the start) has reached a level, by mid-run and by the end (MC)",
+    "magnitude over every step since --peak-start) has reached a level, by mid-window and by the end (MC; SL's "
+    "estimate dotted)",
     "planetary_rim_thickness.png": "thesis Figs. 3.12-3.15: SL for each rim thickness (--rim-thicknesses)",
     "planetary_supports.png": "SL for each number of equally spaced bolts (--support-counts)",
 }
