@@ -772,12 +772,13 @@ def test_peak_quantiles_and_exceedance_from_hand_made_counts():
         histogram_times=np.array([0.5, 1.0]),
         n_samples=100,
     )
-    summary = study.peak_force_summary(SimpleNamespace(mc=mc, sl_peaks=None))
+    summary = study.peak_force_summary(SimpleNamespace(mc=mc, sl_peaks=None, settings={"peak_start_s": 0.25}))
     entry = summary["per_mesh"]["m"]
     assert entry["median_N"] == 4.0 and entry["q90_N"] == 6.0
     assert entry["q99_N"] is None and entry["q999_N"] is None
     assert entry["beyond_top_edge_fraction"] == 0.01 and entry["bin_width_N"] == 1.0
     assert summary["time_s"] == 1.0 and summary["n_samples"] == 100
+    assert "over every step from t = 0.25 s to the end" in summary["note"]
     # the result's exceedance rule on the same counts (the figure's): P(peak >= 1, 2, ..., 10 N)
     mc.peak_start, mc.times = None, np.array([0.0, 1.0])
     exceedance = pg.MonteCarloResult.peak_exceedance(mc, "force:m")
