@@ -185,9 +185,14 @@ class MomentResult(_Labelled, _Covariance):
             raise ValueError(f"`method` must be 'auto', 'steps' or 'rice', got {method!r}")
         if method == "rice" and kind != "u":
             raise ValueError(f"`method='rice'` estimates displacements ('u:<dof>') only, got {quantity!r}")
-        lags = {"u": self.cov_u_lag, "obs": self.cov_obs_lag}.get(kind, self.cov_delta_lag)
+        # per kind: (index by name, mean, std, covariance with the step before), arrays (n_times, k)
+        index, means, stds, lags = {
+            "u": (self.dof, self.mean_u, self.std_u, self.cov_u_lag),
+            "obs": (self.observable, self.mean_obs, self.std_obs, self.cov_obs_lag),
+        }.get(kind, (self.contact, self.mean_delta, self.std_delta, self.cov_delta_lag))
         rice = method == "rice" or (method == "auto" and kind == "u" and lags is None)
-        i = {"u": self.dof, "obs": self.observable}.get(kind, self.contact)(name)
+        i = index(name)
+        mean, std = means[:, i], stds[:, i]
         if rice and name not in self.covariance_dofs:
             raise ValueError(
                 f"the peak of {quantity!r} needs each step's covariance with the step before (solve with "
@@ -217,24 +222,16 @@ class MomentResult(_Labelled, _Covariance):
             first = jnp.argmin(jnp.abs(times - t_start))
         if rice:
             j = self.covariance_dofs.index(name)
-            mean, std = self.mean_u[:, i], self.std_u[:, i]
             rate = crossing_rate(a, mean, std, self.mean_v[:, i], self.std_v[:, i], self.cov_uv[:, j, j])
             crossings = cumulative_trapezoid(rate, times, first)
             at_start = exceedance_at_start(a, mean[first], std[first])[None, :]
         else:
-            if kind == "u":
-                mean, std = self.mean_u[:, i], self.std_u[:, i]
-            elif kind == "obs":
-                mean, std = self.mean_obs[:, i], self.std_obs[:, i]
-            else:
-                mean, std = self.mean_delta[:, i], self.std_delta[:, i]
-            lag = lags[:, i]
             if kind == "force":
                 upper, lower = self._force_barriers(quantity, i, jnp.asarray(a), system)
             else:
                 upper = jnp.broadcast_to(jnp.asarray(a)[None, :], (n_times, a.size))
                 lower = -upper
-            per_step = step_crossings(upper, lower, mean, std, lag)  # step j -> j + 1
+            per_step = step_crossings(upper, lower, mean, std, lags[:, i])  # step j -> j + 1
             per_step = jnp.where((jnp.arange(n_times - 1) >= first)[:, None], per_step, 0.0)
             crossings = jnp.concatenate([jnp.zeros_like(per_step[:1]), jnp.cumsum(per_step, axis=0)])
             at_start = outside_probability(upper[first], lower[first], mean[first], std[first])[None, :]

@@ -772,7 +772,8 @@ def test_peak_quantiles_and_exceedance_from_hand_made_counts():
         histogram_times=np.array([0.5, 1.0]),
         n_samples=100,
     )
-    summary = study.peak_force_summary(SimpleNamespace(mc=mc, sl_peaks=None, settings={"peak_start_s": 0.25}))
+    mc.peak_start, mc.times = 0.25, np.array([0.0, 1.0])
+    summary = study.peak_force_summary(SimpleNamespace(mc=mc, sl_peaks=None))
     entry = summary["per_mesh"]["m"]
     assert entry["median_N"] == 4.0 and entry["q90_N"] == 6.0
     assert entry["q99_N"] is None and entry["q999_N"] is None

@@ -235,8 +235,9 @@ def sl_peak_estimates(
     system, kw: dict, criterion: str, mc: MonteCarloResult, start: float | None = None
 ) -> dict:
     """SL's estimate of each meshing force's peak at the Monte Carlo's peak levels (the bins' upper edges) and
-    histogram times, the peaks taken from ``start`` (s): ``{quantity: {"levels", "probability"}}`` (arrays (n_bins,) and (n_hist, n_bins)), from a run saved every step with ``deflection_lag`` (crossings between steps;
-    :meth:`pgtjax.MomentResult.peak_exceedance`)."""
+    histogram times, the peaks taken from ``start`` (s): ``{quantity: {"levels", "probability"}}`` (arrays
+    (n_bins,) and (n_hist, n_bins)), from a run saved every step with ``deflection_lag`` (crossings between
+    steps; :meth:`pgtjax.MomentResult.peak_exceedance`)."""
     run = {k: v for k, v in kw.items() if k != "observables"}  # only the meshes are needed, at every step
     sl = solve_moments(system, criterion=criterion, save_every=1, deflection_lag=True, **run)
     rows = np.argmin(np.abs(np.asarray(sl.times)[None, :] - np.asarray(mc.histogram_times)[:, None]), axis=1)
@@ -257,8 +258,9 @@ PEAK_FORCE_TIMES = 20
 def peak_force_bins_of(sl: MomentResult, bins: int, saved_times, first: int = 0) -> tuple[dict, np.ndarray]:
     """``(peaks, histogram_times)`` for :func:`pgtjax.monte_carlo`: ``bins`` bins per meshing force from 0 N
     to SL's largest ``|mean| + PEAK_FORCE_STDS std`` over the run (``sl``), and ``PEAK_FORCE_TIMES`` of the
-    Monte Carlo's ``saved_times`` (s) after the ``first`` (the peaks' start), evenly spaced, the last included. A sample whose peak goes beyond that
-    edge is not counted (:func:`peak_force_summary` reports how many were not)."""
+    Monte Carlo's ``saved_times`` (s) from the ``first`` on (the peaks' start), evenly spaced, the last
+    included. A sample whose peak goes beyond that edge is not counted (:func:`peak_force_summary` reports how
+    many were not)."""
     upper = np.max(np.abs(np.asarray(sl.force_mean)) + PEAK_FORCE_STDS * np.asarray(sl.force_std), axis=0)
     peaks = {
         f"force:{name}": np.linspace(0.0, max(float(top), 1.0), bins + 1)
@@ -299,9 +301,9 @@ def peak_force_summary(study: PlanetaryStudy) -> dict | None:
         per_mesh[quantity.split(":", 1)[1]] = entry
     return dict(
         note="peak (largest magnitude) of each meshing force of each sample over every step from "
-        f"t = {study.settings.get('peak_start_s', 0.0):g} s to the end of the run; each quantile is the upper edge of the bin where the Monte Carlo's cumulative "
-        "count reaches it, so within one bin width above it (null where fewer than 10 samples lie beyond it, "
-        "or where it lies beyond the top edge); sl_reach_probability: SL's estimate of the probability "
+        f"t = {_peak_start(mc):g} s to the end of the run; each quantile is the upper edge of the bin where the "
+        "Monte Carlo's cumulative count reaches it, so within one bin width above it (null where fewer than 10 "
+        "samples lie beyond it, or where it lies beyond the top edge); sl_reach_probability: SL's estimate of the probability "
         "that the peak reaches each quantile stated (1 - the quantile if SL and Monte Carlo agreed; SL counts "
         "the crossings between steps as independent, so it is above that where they come in clumps)",
         time_s=float(mc.histogram_times[-1]),
@@ -309,6 +311,11 @@ def peak_force_summary(study: PlanetaryStudy) -> dict | None:
         per_mesh=per_mesh,
         units=dict(n_samples="1 (count)"),
     )
+
+
+def _peak_start(mc: MonteCarloResult) -> float:
+    """The time (s) the Monte Carlo's peaks are taken from."""
+    return float(mc.times[0]) if mc.peak_start is None else float(mc.peak_start)
 
 
 def _same_peaks(mc: MonteCarloResult, a: str, b: str) -> bool:
@@ -366,8 +373,7 @@ def peak_force_figure(study: PlanetaryStudy):
         else ""
     )
     fig.suptitle(
-        f"Peak meshing forces (largest magnitude over every step since t = {study.settings.get('peak_start_s', 0.0):g} s): "
-        "Monte Carlo, "
+        f"Peak meshing forces (largest magnitude over every step since t = {_peak_start(mc):g} s): Monte Carlo, "
         f"{mc.n_samples:,} samples (smallest probability shown {1 / mc.n_samples:.1g}){sl_note}"
     )
     return fig
