@@ -524,6 +524,11 @@ def test_study_grids_outputs_and_symmetry_zero_dofs(tmp_path):
     sens = _ring_sensitivities()  # another model's, whose summary section carries the same units
     full = study.summary(result, sweeps=sweeps, modal=study.modal_table(p), sens=sens)
     assert missing_units(full) == [] and missing_units({**full, "bare": 1.0}) == ["bare"]
+    # a unit for each setting the run has, and none for one it lacks (no peaks' start without peaks)
+    assert set(full["settings"]["units"]) <= set(full["settings"]) and "peak_start_s" in full["settings"]["units"]
+    without_peaks = {k: v for k, v in result.settings.items() if k != "peak_start_s"} | {"peak_force_bins": 0}
+    bare = study.summary(dataclasses.replace(result, settings=without_peaks))["settings"]
+    assert "peak_start_s" not in bare["units"] and missing_units(bare) == []
     # the peak meshing forces: every sample counted within the bins, quantiles in order, at or above each
     # sample's magnitude at the end (the peaks' median is at least the end's smallest |mean| - 3 std)
     peaks = full["peak_meshing_forces"]

@@ -1029,7 +1029,7 @@ def summary(study: PlanetaryStudy, *, sweeps=None, modal=None, sens=None) -> dic
         carrier_period_s=study.carrier_period,
         mesh_period_s=mesh_period(study),
         mean_rotor_torque_Nm=mean_rotor_torque(study.params),
-        settings=dict(study.settings, units=SETTING_UNITS),
+        settings=dict(study.settings, units={k: u for k, u in SETTING_UNITS.items() if k in study.settings}),
         sl_vs_mc={c: error_summary(study, c) for c in study.sl} if study.mc is not None else None,
         roundoff_dofs=roundoff_dofs(study.sl_result()),
     )
