@@ -7,12 +7,12 @@ Each design runs SL over ``--periods`` carrier periods from its own static equil
 one design is a few hundred small kernels whose launches cost more than their arithmetic, so ``vmap``-ing
 designs should cost little more per call than one design: the seconds per design are the figure. Every
 configuration is called once to compile (reported apart), then ``--repeats`` times, the configurations
-alternating. The vmapped designs' values are checked against the one-by-one values of the same designs.
+alternating. The first ``--sequential`` vmapped designs' values are checked against their one-by-one values.
 
 Usage: python benchmarks/bench_design_batch.py [--periods 0.1] [--sequential 8] [--batches 32,128]
        [--cpu-batches 32] [--repeats 2] [--quick]
 Writes benchmarks/results/design_batch_<platform>.json (``_quick`` with --quick), rewritten after each
-configuration so that a run stopped part-way keeps what it measured.
+configuration's first call (so that a run stopped part-way keeps its compilation times) and at the end.
 """
 
 from __future__ import annotations

@@ -367,7 +367,9 @@ class Backlash(ContactLaw):
             )
         # NumPy on a concrete k: a jnp comparison inside a caller's trace would be traced itself
         if not isinstance(k, jax.core.Tracer) and bool(np.any(np.asarray(k) < 0.0)):
-            raise ValueError(f"`contact stiffness` must be >= 0 N/m, got {np.asarray(k)}")
+            raise ValueError(
+                f"`Contacts(stiffness=...)` (mesh stiffness) must be >= 0 N/m, got {np.asarray(k)}"
+            )
         return k
 
     def closed_stiffness(self, k, b):

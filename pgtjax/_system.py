@@ -403,7 +403,7 @@ def validate_system(system: System, t0: float = 0.0, *, time_name: str = "t0") -
             j = int(np.argmin(diag))
             raise ValueError(
                 f"`mass` must have positive diagonal entries (masses/inertias > 0); "
-                f"DOF {system.dof_names[j]!r} has {diag[j]!r}"
+                f"DOF {system.dof_names[j]!r} has {float(diag[j]):g}"
             )
         scale = np.max(np.abs(Mn))
         if not np.allclose(Mn, Mn.T, rtol=1e-10, atol=1e-12 * scale):
@@ -411,7 +411,7 @@ def validate_system(system: System, t0: float = 0.0, *, time_name: str = "t0") -
         smallest = float(np.linalg.eigvalsh(0.5 * (Mn + Mn.T)).min())
         if smallest <= 0.0:
             raise ValueError(
-                f"`mass` must be positive definite (all eigenvalues > 0), smallest eigenvalue is {smallest!r}"
+                f"`mass` must be positive definite (all eigenvalues > 0), smallest eigenvalue is {smallest:g}"
             )
     t = jnp.asarray(t0, dtype=jnp.float64)
     contacts = () if system.contacts is None else (system.contacts.direction, system.contacts.inputs)
@@ -432,7 +432,9 @@ def validate_system(system: System, t0: float = 0.0, *, time_name: str = "t0") -
     _check_finite("noise_input", b)
     _check_finite("spectral_density", system.spectral_density)
     if _is_concrete(system.spectral_density) and np.any(np.asarray(system.spectral_density) < 0.0):
-        raise ValueError("`spectral_density` must be >= 0")
+        density = np.asarray(system.spectral_density)
+        got = f"{float(density.ravel()[0]):g}" if density.size == 1 else str(density)
+        raise ValueError(f"`spectral_density` must be >= 0, got {got}")
     if len(system.dof_names) != n or len(system.dof_units) != n:
         raise ValueError(f"`dof_names` and `dof_units` must have {n} entries")
     if system.contacts is not None:
@@ -446,7 +448,9 @@ def validate_system(system: System, t0: float = 0.0, *, time_name: str = "t0") -
         _check_finite("contact direction", g)
         inputs = c.law.check_inputs(raw_inputs, nc)
         for leaf in jax.tree.leaves(inputs):
-            _check_finite("contact stiffness" if isinstance(c.law, Backlash) else "contact-law inputs", leaf)
+            _check_finite(
+                "Contacts(stiffness=...)" if isinstance(c.law, Backlash) else "contact-law inputs", leaf
+            )
         for leaf in jax.tree.leaves(c.law):
             _check_finite(f"parameters of the contact law {type(c.law).__name__}", leaf)
         if len(c.names) != nc:

@@ -279,11 +279,12 @@ def mean_std_figure(
             fig.suptitle(title + (f"\n{subtitle}" if subtitle else ""), fontsize=9 if subtitle else None)
         if per_cycle:
             averaged = "lines and markers" if any(", 95 %" in k for k in handles) else "lines"
-            shaded = f"shaded, in the colour of its line: range within each {cycle_name}"
-            handles[f"{shaded}; {averaged}: {cycle_name} averages"] = Patch(color="0.6", alpha=0.4, lw=0)
-        fig.legend(
-            list(handles.values()), list(handles), loc="outside lower center", ncol=min(len(handles), 4)
-        )
+            shaded = f"shaded, in the colour of its line: range within each {cycle_name};"
+            handles[f"{shaded}\n{averaged}: {cycle_name} averages"] = Patch(color="0.6", alpha=0.4, lw=0)
+        # a figure of two columns takes the legend on two rows: in one row it would set the figure's width,
+        # leaving the panels squeezed in the middle
+        columns = min(len(handles), 4 if len(quantities) > 2 else 2)
+        fig.legend(list(handles.values()), list(handles), loc="outside lower center", ncol=columns)
     return fig
 
 

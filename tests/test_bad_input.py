@@ -61,7 +61,7 @@ API = [
     # the system
     ("mass string", lambda: pg.System(mass="heavy", stiffness=[[1.0]]), "`mass`"),
     ("stiffness None", lambda: pg.System(mass=[[1.0]], stiffness=None), "`stiffness`"),
-    ("mass negative", lambda: sl(spring(mass=[[-1.0]])), "`mass`"),
+    ("mass negative", lambda: sl(spring(mass=[[-1.0]])), "`mass` must have positive diagonal.*'x' has -1$"),
     ("mass asymmetric", lambda: sl(chain(mass=[[1.0, 0.5], [0.0, 1.0]])), "`mass` must be symmetric"),
     ("mass indefinite", lambda: sl(chain(mass=[[1.0, 2.0], [2.0, 1.0]])), "`mass` must be positive definite"),
     ("mass NaN", lambda: sl(spring(mass=[[np.nan]])), "`mass`"),
@@ -75,7 +75,11 @@ API = [
     ("noise_input wrong rows", lambda: sl(spring(noise_input=np.ones((2, 1)))), "`noise_input`"),
     ("noise_input 1-D function", lambda: spring(noise_input=lambda t: jnp.ones(1)), "`noise_input`"),
     ("noise_input NaN", lambda: sl(spring(noise_input=[[np.nan]])), "`noise_input`"),
-    ("spectral density negative", lambda: sl(spring(spectral_density=-1.0)), "`spectral_density`"),
+    (
+        "spectral density negative",
+        lambda: sl(spring(spectral_density=-1.0)),
+        "`spectral_density` must be >= 0, got -1",
+    ),
     (
         "spectral density wrong length",
         lambda: spring(noise_input=np.ones((1, 2)), spectral_density=[1.0, 2.0, 3.0]),
@@ -99,7 +103,11 @@ API = [
         "`clearance`",
     ),  # fmt: skip
     ("clearance 2-D", lambda: pg.Contacts([[1.0]], stiffness=[1.0], clearance=[[0.01]]), "`clearance`"),
-    ("contact stiffness negative", lambda: sl(spring(contacts=contact([-100.0]))), "`contact stiffness`"),
+    (
+        "contact stiffness negative",
+        lambda: sl(spring(contacts=contact([-100.0]))),
+        r"`Contacts\(stiffness=...\)` \(mesh stiffness\) must be >= 0 N/m, got \[-100.\]",
+    ),  # fmt: skip
     (
         "contact direction wrong shape",
         lambda: sl(spring(contacts=pg.Contacts(np.ones((2, 1)), stiffness=[1.0], clearance=[0.0]))),

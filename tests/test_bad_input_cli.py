@@ -58,7 +58,22 @@ CASES = [
         "`t_end`",
     ),
     ("samples negative", lambda d: ["gear-pair", "--samples", "-1"], "--samples"),
-    ("samples one", lambda d: ["gear-pair", "--samples", "1", "--out", str(d / "o")], "`n_samples`"),
+    ("samples one", lambda d: ["gear-pair", "--samples", "1"], "--samples: must be 0 (no Monte Carlo) or an"),
+    (
+        "planetary samples one",
+        lambda d: ["run", "--samples", "1"],
+        "--samples: must be 0 (no Monte Carlo) or an",
+    ),
+    (
+        "planetary dt beyond half a mesh period",
+        lambda d: ["run", "--dt", "5", "--periods", "0.02", "--out", str(d / "o")],
+        "`--dt` must be > 0 and below half the period of the mesh stiffness's highest harmonic (harmonic 5",
+    ),  # fmt: skip
+    (
+        "planetary periods shorter than a step",
+        lambda d: ["planetary", "--periods", "1e-6", "--out", str(d / "o")],
+        "`--periods` (1e-06 carrier periods, 2.706e-05 s) must span at least one time step",
+    ),  # fmt: skip
     ("chunk size zero", lambda d: ["planetary", "--chunk-size", "0", "--out", str(d / "o")], "--chunk-size"),
     ("gear-pair chunk size zero", lambda d: ["gear-pair", "--chunk-size", "0"], "--chunk-size"),
     ("dt negative with an exponent", lambda d: ["gear-pair", "--dt", "-1e-5"], "--dt: must be a number > 0"),

@@ -525,7 +525,10 @@ def test_study_grids_outputs_and_symmetry_zero_dofs(tmp_path):
     full = study.summary(result, sweeps=sweeps, modal=study.modal_table(p), sens=sens)
     assert missing_units(full) == [] and missing_units({**full, "bare": 1.0}) == ["bare"]
     # a unit for each setting the run has, and none for one it lacks (no peaks' start without peaks)
-    assert set(full["settings"]["units"]) <= set(full["settings"]) and "peak_start_s" in full["settings"]["units"]
+    assert (
+        set(full["settings"]["units"]) <= set(full["settings"])
+        and "peak_start_s" in full["settings"]["units"]
+    )
     without_peaks = {k: v for k, v in result.settings.items() if k != "peak_start_s"} | {"peak_force_bins": 0}
     bare = study.summary(dataclasses.replace(result, settings=without_peaks))["settings"]
     assert "peak_start_s" not in bare["units"] and missing_units(bare) == []
@@ -610,6 +613,25 @@ def test_study_grid_saves_sl_exactly_sl_refine_times_as_often(n_saves, sl_refine
     )  # at least the saves asked for, if possible
 
 
+def test_study_grid_refuses_a_step_that_aliases_the_mesh_stiffness_or_spans_the_run():
+    """The time step must sample the mesh stiffness's highest harmonic at least twice a period (pi / (H w_m),
+    H harmonics), and the run must span at least one step; NaN and infinite values are refused too."""
+    from pgtjax.studies import planetary as study
+
+    p = pm.default_params()
+    limit = np.pi / (p.mesh.harmonics * float(p.mesh.mesh_frequency))
+    assert p.mesh.harmonics == 5 and 0.0027 < limit < 0.1  # the thesis's step passes, 0.1 s would alias
+    study._grid(p, 0.999 * limit, 1.0, 10, 1)
+    for dt in (limit, 0.1, 0.0, -1.0, np.nan):
+        with pytest.raises(ValueError, match=r"`dt` must be > 0 and below half the period .*\(harmonic 5"):
+            study._grid(p, dt, 1.0, 10, 1)
+    one_step = 0.0027 / study.carrier_period(p)
+    assert study._grid(p, 0.0027, one_step, 10, 1)[0] == 1
+    for periods in (0.99 * one_step, np.inf, np.nan):
+        with pytest.raises(ValueError, match=r"`periods` .* must span at least one time step"):
+            study._grid(p, 0.0027, periods, 10, 1)
+
+
 def test_rigid_ring_study_with_another_criterion_writes_its_outputs(tmp_path):
     """The rigid-ring model has no ring nodes or contact-point observables; the energy criterion alone."""
     from pgtjax.studies import planetary as study
@@ -666,6 +688,30 @@ def test_per_cycle_envelope_and_si_prefixes():
         times, curves, [("x", "m")], cycle=0.02, styles={"MC": {"ls": "none", "marker": "o"}}
     )
     assert len(fig.axes[0].get_lines()[0].get_xdata()) == 2001  # SL point by point, not 50 cycle averages
+    # drawn per cycle, two panels wide: the legend (with the band's two-line note) is no wider than the figure
+    # would be without it, so the panels are not squeezed into the middle of a wider image
+    sl_only = {"SL": {n: curves["SL"]["x"] for n in ("x", "y")}}
+    fig = plots.mean_std_figure(dense, sl_only, [("x", "m"), ("y", "m")], cycle=0.02, title="two panels")
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    legend, renderer = fig.legends[0], FigureCanvasAgg(fig).get_renderer()
+    assert any("\n" in text.get_text() for text in legend.get_texts())  # the band's note on two lines
+    assert legend.get_window_extent(renderer).width <= fig.bbox.width
+    # with Monte Carlo's markers too: three entries, still in two columns (one row would be wider)
+    both = {**sl_only, "MC": {n: curves["MC"]["x"] for n in ("x", "y")}}
+    times_both = {"SL": dense, "MC": np.linspace(0, 1, 401)}
+    both["MC"] = {
+        n: tuple(np.interp(times_both["MC"], sparse, a) for a in curves["MC"]["x"]) for n in ("x", "y")
+    }
+    fig = plots.mean_std_figure(
+        times_both, both, [("x", "m"), ("y", "m")], cycle=0.02, styles={"MC": {"ls": "none", "marker": "o"}}
+    )
+    canvas = FigureCanvasAgg(fig)
+    canvas.draw()  # lays out the legend's entries
+    legend, renderer = fig.legends[0], canvas.get_renderer()
+    sl_text, mc_text, _ = (t.get_window_extent(renderer) for t in legend.get_texts())
+    assert mc_text.y1 < sl_text.y0  # MC's entry under SL's: not all three in one row
+    assert legend.get_window_extent(renderer).width <= fig.bbox.width
     # numbers of every numeric type need a unit in summary.json
     from pgtjax._summary import missing_units
 

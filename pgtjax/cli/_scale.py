@@ -70,6 +70,8 @@ _OPTION_NAMES = {
     "`checkpoint`": "`--checkpoint`",
     "`chunk_size`": "`--chunk-size`",
     "`n_samples`": "`--samples`",
+    "`dt`": "`--dt`",
+    "`periods`": "`--periods`",
     "`resume=True`": "`--resume`",
     "run without resume": "run without --resume",
     "key: checkpoint": "key, from --seed: checkpoint",

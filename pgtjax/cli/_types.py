@@ -30,6 +30,11 @@ def nonneg_int(text: str) -> int:
     return _number(int, text, "an integer >= 0", lambda v: v >= 0)
 
 
+def sample_count(text: str) -> int:
+    """Monte Carlo samples of a study: 0 skips Monte Carlo; statistics need at least 2."""
+    return _number(int, text, "0 (no Monte Carlo) or an integer >= 2", lambda v: v == 0 or v >= 2)
+
+
 def positive_int(text: str) -> int:
     return _number(int, text, "an integer >= 1", lambda v: v >= 1)
 

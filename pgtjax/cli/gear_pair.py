@@ -16,9 +16,9 @@ from ._types import (
     criteria,
     csv_nonneg_floats,
     csv_positive_floats,
-    nonneg_int,
     positive_float,
     positive_int,
+    sample_count,
     seed,
 )
 
@@ -27,7 +27,7 @@ def _add_gear_pair_options(p: argparse.ArgumentParser, quick: bool) -> None:
     add_parameter_options(p, "gear_pair")
     p.add_argument(
         "--samples",
-        type=nonneg_int,
+        type=sample_count,
         default=2000 if quick else 20_000,
         help="Monte Carlo samples per regime (0 skips MC; default %(default)s)",
     )

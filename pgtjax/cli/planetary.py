@@ -28,6 +28,7 @@ from ._types import (
     nonneg_int,
     positive_float,
     positive_int,
+    sample_count,
     seed,
 )
 
@@ -36,14 +37,19 @@ def _add_planetary_options(p: argparse.ArgumentParser, quick: bool) -> None:
     add_parameter_options(p, "planetary")
     p.add_argument(
         "--samples",
-        type=nonneg_int,
+        type=sample_count,
         default=300 if quick else 100_000,
         help="Monte Carlo samples (0 skips MC; default %(default)s; the thesis used 100,000)",
     )
     p.add_argument(
         "--periods", type=positive_float, default=1.0, help="carrier periods simulated (default 1)"
     )
-    p.add_argument("--dt", type=positive_float, default=0.0027, help="time step in s (thesis: 0.0027)")
+    p.add_argument(
+        "--dt",
+        type=positive_float,
+        default=0.0027,
+        help="time step in s, below half a mesh period (default %(default)s, the thesis's)",
+    )
     p.add_argument(
         "--saves",
         type=positive_int,
@@ -72,7 +78,10 @@ def _add_planetary_options(p: argparse.ArgumentParser, quick: bool) -> None:
         "(default: those of 3,6,9 that do)",
     )
     p.add_argument(
-        "--criteria", type=criteria, default="force", help="comma-separated SL criteria (force, energy)"
+        "--criteria",
+        type=criteria,
+        default="force",
+        help="comma-separated SL criteria: force, energy (default %(default)s)",
     )
     p.add_argument(
         "--ring-model",
@@ -85,7 +94,12 @@ def _add_planetary_options(p: argparse.ArgumentParser, quick: bool) -> None:
     )
     p.add_argument("--no-sweeps", action="store_true", help="skip the rim-thickness and support studies")
     p.add_argument("--no-sensitivities", action="store_true", help="skip the autodiff sensitivities")
-    p.add_argument("--seed", type=seed, default=0, help="PRNG seed of the Monte Carlo")
+    p.add_argument(
+        "--seed",
+        type=seed,
+        default=0,
+        help="PRNG seed of the Monte Carlo (any 64-bit integer; default %(default)s)",
+    )
     p.add_argument(
         "--peak-forces",
         type=nonneg_int,
@@ -179,8 +193,8 @@ def _run_planetary(args) -> int:
         except ValueError as err:
             raise as_command_line(err) from None
         return 0
-    print(
-        study.format_header(
+    try:
+        header = study.format_header(
             params,
             periods=args.periods,
             dt=args.dt,
@@ -189,7 +203,9 @@ def _run_planetary(args) -> int:
             n_saves=args.saves,
             sl_refine=args.sl_refine,
         )
-    )
+    except ValueError as err:
+        raise as_command_line(err) from None
+    print(header)
     if jax.process_count() > 1:
         print(f"Monte Carlo split over {jax.process_count()} processes ({len(jax.devices())} devices in all)")
     elif args.samples:

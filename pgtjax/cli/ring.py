@@ -23,6 +23,7 @@ from ._types import csv_ints as _csv_ints
 from ._types import element_count as _element_count
 from ._types import nonneg_int as _nonneg_int
 from ._types import positive_float as _positive_float
+from ._types import sample_count as _sample_count
 
 
 def _clear_errors(func):
@@ -240,7 +241,7 @@ def register(subparsers) -> None:
     )
     ml.add_argument(
         "--samples",
-        type=_nonneg_int,
+        type=_sample_count,
         default=200,
         help="Monte Carlo samples of the base case (0 skips MC; default %(default)s)",
     )

@@ -108,6 +108,19 @@ def _grid(p, dt, periods, n_saves, sl_refine):
     while MC pays its per-save cost only at its own saves), and MC about ``n_saves`` times: more when
     ``n_saves * sl_refine`` exceeds the number of steps, since SL is saved at most once a step."""
     sl_refine, n_saves = check_count("sl_refine", sl_refine), check_count("n_saves", n_saves)
+    # the mesh stiffness, sampled once a step, aliases unless its highest harmonic has two steps a period
+    n_harmonics = max(int(p.mesh.harmonics), 1)
+    limit = np.pi / (n_harmonics * float(p.mesh.mesh_frequency))
+    if not 0.0 < dt < limit:
+        raise ValueError(
+            f"`dt` must be > 0 and below half the period of the mesh stiffness's highest harmonic (harmonic "
+            f"{n_harmonics} of the meshing frequency), {limit:.4g} s; got {dt:g} s (the thesis uses 0.0027 s)"
+        )
+    if not (np.isfinite(periods) and periods * carrier_period(p) >= dt):
+        raise ValueError(
+            f"`periods` ({periods:g} carrier periods, {periods * carrier_period(p):.4g} s) must span at least one "
+            f"time step of `dt` = {dt:g} s: at least {dt / carrier_period(p):.3g} periods"
+        )
     target = int(round(periods * carrier_period(p) / dt))
     sl_every = max(target // (n_saves * sl_refine), 1)
     mc_every = sl_every * sl_refine
@@ -747,7 +760,7 @@ def format_error_summary(e: dict) -> str:
 def format_sensitivities(sens: dict) -> str:
     """Plain-text lines of :func:`sensitivities`: gradient, extrapolated central differences, elasticities."""
     return "\n".join(
-        f"d {q} / d(rim thickness, bolt k_r): autodiff [{grad[0]:.8e}, {grad[1]:.8e}], "
+        f"d {q} / d(rim thickness (m), bolt k_r (N/m)): autodiff [{grad[0]:.8e}, {grad[1]:.8e}], "
         f"extrapolated central differences [{fd[0]:.8e}, {fd[1]:.8e}]; "
         f"elasticities [{el[0]:+.3f}, {el[1]:+.3f}]"
         for q, grad, fd, el in zip(
@@ -858,6 +871,10 @@ def contact_point_figure(study: PlanetaryStudy):
     )
 
 
+#: the meshing forces' sign, stated on their figures (the thesis's figures do not show it)
+FORCE_SIGN_NOTE = "signed as the mesh deflections: under the rotor torque every mesh's force is negative"
+
+
 def mesh_force_figure(study: PlanetaryStudy, meshes=("sun_planet1", "ring_planet1")):
     """Mean and mean square of the equivalent meshing forces over the whole run (Figs. 3.10-3.11): per mesh
     cycle (its range as a band around the cycle average; the thesis's figures draw every cycle, which at
@@ -870,6 +887,7 @@ def mesh_force_figure(study: PlanetaryStudy, meshes=("sun_planet1", "ring_planet
         second="mean square",
         styles={"MC": MC_MARKERS},
         title="Equivalent meshing forces (thesis Figs. 3.10-3.11)",
+        subtitle=FORCE_SIGN_NOTE,
         cycle=mesh_period(study),
     )
 
@@ -893,6 +911,7 @@ def mesh_force_zoom_figure(study: PlanetaryStudy, meshes=("sun_planet1", "ring_p
         second="mean square",
         styles={"MC": MC_MARKERS},
         title=f"Meshing forces over {width / period:.3g} mesh periods: SL vs MC",
+        subtitle=FORCE_SIGN_NOTE,
     )
 
 
