@@ -69,6 +69,7 @@ def compare(name, system, contacts, n_samples, *, dt, n_steps, start, sl_kwargs=
             monte_carlo_standard_error=exceedance.standard_error[0, : len(SIGMAS)].tolist(),
             sl_poisson=np.asarray(estimate.probability[-1]).tolist(),
             sl_bound=np.asarray(estimate.upper_bound[-1]).tolist(),
+            sl_lower_bound=np.asarray(estimate.lower_bound[-1]).tolist(),
             **extra,
         )
 

@@ -225,6 +225,8 @@ class MomentResult(_Labelled, _Covariance):
             rate = crossing_rate(a, mean, std, self.mean_v[:, i], self.std_v[:, i], self.cov_uv[:, j, j])
             crossings = cumulative_trapezoid(rate, times, first)
             at_start = exceedance_at_start(a, mean[first], std[first])[None, :]
+            level = jnp.broadcast_to(jnp.asarray(a)[None, :], (n_times, a.size))
+            outside = outside_probability(level, -level, mean[:, None], std[:, None])
         else:
             if kind == "force":
                 upper, lower = self._force_barriers(quantity, i, jnp.asarray(a), system)
@@ -235,10 +237,15 @@ class MomentResult(_Labelled, _Covariance):
             per_step = jnp.where((jnp.arange(n_times - 1) >= first)[:, None], per_step, 0.0)
             crossings = jnp.concatenate([jnp.zeros_like(per_step[:1]), jnp.cumsum(per_step, axis=0)])
             at_start = outside_probability(upper[first], lower[first], mean[first], std[first])[None, :]
+            outside = outside_probability(upper, lower, mean[:, None], std[:, None])
             if kind == "force":
                 # |f| >= 0 always: a level of 0 N is reached at the start, whatever the clearance
                 at_start = jnp.where(jnp.asarray(a)[None, :] == 0.0, 1.0, at_start)
+                outside = jnp.where(jnp.asarray(a)[None, :] == 0.0, 1.0, outside)
         counted = (jnp.arange(n_times) >= first)[:, None]
+        # the peak since the start is at least the magnitude at each saved time since: P(|X(t)| >= a) at the
+        # most likely of them bounds the probability from below, with no assumption on the crossings
+        lower_bound = jax.lax.cummax(jnp.where(counted, outside, 0.0), axis=0)
         return CrossingExceedance(
             levels=jnp.asarray(a),
             probability=jnp.where(counted, 1.0 - (1.0 - at_start) * jnp.exp(-crossings), 0.0),
@@ -246,6 +253,7 @@ class MomentResult(_Labelled, _Covariance):
             expected_crossings=crossings,
             times=times,
             start=times[first],
+            lower_bound=lower_bound,
         )
 
     def _force_barriers(self, quantity: str, contact: int, levels, system):
@@ -332,6 +340,9 @@ class CrossingExceedance(NamedTuple):
     expected_crossings: jax.Array  # (n, k) N, the mean number of times |value| reached the level since start
     times: jax.Array  # (n,) the saved times (s)
     start: jax.Array  # s, the saved time the peaks are taken from
+    # (n, k) the largest P(|value| >= level) at one saved time since start: a bound from below that, unlike
+    # the Poisson stream, holds when crossings come in clumps
+    lower_bound: jax.Array
 
 
 class PeakExceedance(NamedTuple):

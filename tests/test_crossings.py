@@ -379,6 +379,7 @@ def test_sl_contact_peaks_under_a_varying_mesh_stiffness_match_monte_carlo(dt):
         poisson, bound = np.asarray(sl_peaks.probability[-1]), np.asarray(sl_peaks.upper_bound[-1])
         assert sl_peaks.probability.dtype == jnp.float64 and 0.01 < poisson[1] < 0.2
         assert np.all(p_mc <= bound + 3 * se), (q, p_mc, bound)
+        assert np.all(np.asarray(sl_peaks.lower_bound[-1]) <= p_mc + 3 * se), q
         assert agrees(poisson, p_mc, se), (q, p_mc, poisson)
     if dt < 0.01:  # with the coarse step the frozen barrier is off by only 10-15 % (too close to tell here)
         p_force = np.asarray(mc.peak_exceedance("force:c").probability[0, :3])
@@ -436,6 +437,39 @@ def test_displacement_and_observable_peaks_between_steps_have_the_gradient_of_a_
     fd = (np.asarray(with_values(x + h)[0][1]) - np.asarray(with_values(x - h)[0][1])) / (2 * h)
     assert np.all(np.abs(fd) > 1e-3 * value)  # the levels' probabilities move with the variable
     np.testing.assert_allclose(float(grad), fd[0] + 3.7 * fd[1], rtol=1e-5)
+
+
+@pytest.mark.parametrize("method", ["steps", "rice"])
+def test_lower_bound_is_the_largest_exceedance_at_one_time_since_the_start(method):
+    """``lower_bound``: the largest P(|X(t)| >= a) over the saved times from ``start`` (0 before), against
+    SciPy's normal distribution from SL's moments, for an oscillator whose response grows from rest under a
+    static load; and its derivative in the stiffness (jitted) against a central difference."""
+    from scipy.stats import norm
+
+    def solve(k):
+        system = pg.System(mass=[[1.0]], stiffness=[[k]], damping=[[2 * 0.3 * OMEGA]], load=[1.0],
+                           noise_input=[[1.0]], spectral_density=1.0, dof_names=["x"])  # fmt: skip
+        return pg.solve_moments(system, dt=1e-3, n_steps=300, deflection_lag=True, covariance_dofs=["x"])
+
+    levels, start = np.array([0.01, 0.02]), 0.05
+    sl = solve(OMEGA**2)
+    bound = sl.peak_exceedance("u:x", levels, start=start, method=method).lower_bound
+    m, s, t = (np.asarray(x) for x in (sl.mean_u[:, 0], sl.std_u[:, 0], sl.times))
+    with np.errstate(divide="ignore"):  # std 0 at the start from rest, before the window
+        outside = norm.sf((levels - m[:, None]) / s[:, None]) + norm.cdf((-levels - m[:, None]) / s[:, None])
+    outside[t < start - 1e-12] = 0.0
+    assert bound.dtype == jnp.float64 and 1e-6 < float(bound[-1, 1]) < float(bound[-1, 0]) < 0.5
+    np.testing.assert_allclose(
+        np.asarray(bound), np.maximum.accumulate(outside, axis=0), rtol=1e-10, atol=1e-15
+    )
+
+    def lower(log_k):
+        sl = solve(OMEGA**2 * jnp.exp(log_k))
+        return sl.peak_exceedance("u:x", levels, start=start, method=method).lower_bound[-1, 0]
+
+    h = 1e-5
+    fd = (float(lower(h)) - float(lower(-h))) / (2 * h)
+    np.testing.assert_allclose(float(jax.jit(jax.grad(lower))(0.0)), fd, rtol=1e-5)
 
 
 def _scaled(stiffness, factor):

@@ -537,6 +537,14 @@ def test_study_grids_outputs_and_symmetry_zero_dofs(tmp_path):
     peaks = full["peak_meshing_forces"]
     assert set(peaks["per_mesh"]) == set(sl.contact_names) and peaks["n_samples"] == 200
     assert st["peak_start_s"] == 0.0 and "from t = 0 s" in peaks["note"]
+    # SL's bound from below: the largest probability of being beyond a level at one step, under Monte Carlo's
+    # peak probability (within its error)
+    for q, estimate in result.sl_peaks.items():
+        p_mc, se = mc.peak_exceedance(q).probability[-1], mc.peak_exceedance(q).standard_error[-1]
+        assert np.all(estimate["lower_bound"][-1] <= p_mc + 3 * se + 1.0 / mc.n_samples), q
+        assert 0.0 < np.max(estimate["lower_bound"][-1] * (estimate["lower_bound"][-1] < 1.0))
+    reached = [e["sl_lower_bound_reach_probability"] for e in peaks["per_mesh"].values()]
+    assert all(v is None or 0.0 <= v <= 1.0 for r in reached for v in r.values())
     # peaks counted from a later save (the same samples): over a shorter window, never larger
     saved = np.asarray(mc.times)
     later = study.run_study(p, n_samples=200, periods=0.02, n_saves=4, sl_refine=3, key=jax.random.key(2),

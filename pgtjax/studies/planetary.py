@@ -248,9 +248,9 @@ def sl_peak_estimates(
     system, kw: dict, criterion: str, mc: MonteCarloResult, start: float | None = None
 ) -> dict:
     """SL's estimate of each meshing force's peak at the Monte Carlo's peak levels (the bins' upper edges) and
-    histogram times, the peaks taken from ``start`` (s): ``{quantity: {"levels", "probability"}}`` (arrays
-    (n_bins,) and (n_hist, n_bins)), from a run saved every step with ``deflection_lag`` (crossings between
-    steps; :meth:`pgtjax.MomentResult.peak_exceedance`)."""
+    histogram times, the peaks taken from ``start`` (s): ``{quantity: {"levels", "probability", "lower_bound"}}``
+    (arrays (n_bins,), (n_hist, n_bins) and (n_hist, n_bins)), from a run saved every step with
+    ``deflection_lag`` (crossings between steps; :meth:`pgtjax.MomentResult.peak_exceedance`)."""
     run = {k: v for k, v in kw.items() if k != "observables"}  # only the meshes are needed, at every step
     sl = solve_moments(system, criterion=criterion, save_every=1, deflection_lag=True, **run)
     rows = np.argmin(np.abs(np.asarray(sl.times)[None, :] - np.asarray(mc.histogram_times)[:, None]), axis=1)
@@ -258,7 +258,11 @@ def sl_peak_estimates(
     for quantity, edges in mc.peak_edges.items():
         levels = np.asarray(edges)[1:]  # the edges start at 0 (peak_force_bins_of)
         estimate = sl.peak_exceedance(quantity, levels, system=system, start=start)
-        out[quantity] = dict(levels=levels, probability=np.asarray(estimate.probability)[rows])
+        out[quantity] = dict(
+            levels=levels,
+            probability=np.asarray(estimate.probability)[rows],
+            lower_bound=np.asarray(estimate.lower_bound)[rows],
+        )
     return out
 
 
@@ -300,7 +304,8 @@ def peak_force_summary(study: PlanetaryStudy) -> dict | None:
         entry["beyond_top_edge_fraction"] = float((mc.n_samples - cumulative[-1]) / mc.n_samples)
         # SL's estimate at the same levels (the bins' upper edges), by the end: ideally 1 - the quantile
         sl_end = None if study.sl_peaks is None else study.sl_peaks[quantity]["probability"][-1]
-        reach = {}
+        sl_lower = None if study.sl_peaks is None else study.sl_peaks[quantity].get("lower_bound")
+        reach, reach_lower = {}, {}
         for label, per_mille in levels.items():
             # whole numbers of samples (at most n_samples, so doubles hold them exactly): the sample count the
             # quantile needs below it, and the 10 beyond it that make it worth stating
@@ -309,8 +314,11 @@ def peak_force_summary(study: PlanetaryStudy) -> dict | None:
             stated = mc.n_samples - needed >= 10 and reached.size
             entry[f"{label}_N"] = float(edges[reached[0] + 1]) if stated else None
             reach[label] = float(sl_end[reached[0]]) if stated and sl_end is not None else None
+            reach_lower[label] = float(sl_lower[-1][reached[0]]) if stated and sl_lower is not None else None
         if sl_end is not None:
             entry["sl_reach_probability"] = reach
+        if sl_lower is not None:
+            entry["sl_lower_bound_reach_probability"] = reach_lower
         per_mesh[quantity.split(":", 1)[1]] = entry
     return dict(
         note="peak (largest magnitude) of each meshing force of each sample over every step from "
@@ -318,7 +326,9 @@ def peak_force_summary(study: PlanetaryStudy) -> dict | None:
         "Monte Carlo's cumulative count reaches it, so within one bin width above it (null where fewer than 10 "
         "samples lie beyond it, or where it lies beyond the top edge); sl_reach_probability: SL's estimate of the probability "
         "that the peak reaches each quantile stated (1 - the quantile if SL and Monte Carlo agreed; SL counts "
-        "the crossings between steps as independent, so it is above that where they come in clumps)",
+        "the crossings between steps as independent, so it is above that where they come in clumps); "
+        "sl_lower_bound_reach_probability: SL's bound from below of the same probability (the largest probability of being "
+        "beyond the level at one step), close to the truth where crossings come in long clumps",
         time_s=float(mc.histogram_times[-1]),
         n_samples=mc.n_samples,
         per_mesh=per_mesh,
@@ -368,12 +378,16 @@ def peak_force_figure(study: PlanetaryStudy):
                 label = f"{', '.join(names)}{' (the same counts)' if len(names) > 1 else ''}, by t = {times[row]:.3g} s"
                 ax.semilogy(levels[keep] / 1e3, p[keep], style, color=f"C{k}", label=label)
                 certain.append(np.concatenate([[0.0], levels[p >= 1.0]])[-1] / 1e3)
-            if study.sl_peaks is not None:  # SL's estimate by the end, thin and dotted
+            if study.sl_peaks is not None:  # SL's estimate by the end, thin and dotted, above its lower bound
                 estimate = study.sl_peaks[quantity]
                 p = estimate["probability"][-1]
                 keep = p >= 1.0 / mc.n_samples
                 ax.semilogy(estimate["levels"][keep] / 1e3, p[keep], ":", color=f"C{k}", lw=1.5,
                             label=f"{', '.join(names)}, SL's estimate by t = {times[-1]:.3g} s")  # fmt: skip
+                if "lower_bound" in estimate:
+                    ax.fill_between(estimate["levels"][keep] / 1e3, estimate["lower_bound"][-1][keep], p[keep],
+                                    color=f"C{k}", alpha=0.12, lw=0,
+                                    label=f"{', '.join(names)}, SL: from its lower bound to its estimate")  # fmt: skip
         ax.set_xlim(left=max(0.9 * min(certain), 0.0))
         ax.set_title(title)
         ax.set_xlabel("meshing force level (kN)")
@@ -381,7 +395,8 @@ def peak_force_figure(study: PlanetaryStudy):
         ax.legend(fontsize=7)
     axes[0].set_ylabel("probability that the peak has reached the level")
     sl_note = (
-        "\nSL's estimate (dotted): crossings between steps counted as independent, conservative where they clump"
+        "\nSL's estimate (dotted): crossings between steps counted as independent, conservative where they clump;"
+        "\nshaded down to SL's lower bound, the largest probability of being beyond the level at one step"
         if study.sl_peaks
         else ""
     )
