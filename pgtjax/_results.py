@@ -156,6 +156,11 @@ class MomentResult(_Labelled, _Covariance):
         implement ``deflections_at_force``; only its contact names and count of DOFs are checked against the
         result, so pass the very system, with the stiffness it was solved with).
 
+        ``lower_bound``, the largest probability of being beyond a level at one saved time since ``start``,
+        bounds the probability from below with no assumption on the crossings, and ``upper_bound`` from above
+        (both for the Gaussian response with SL's moments); the Poisson ``probability`` lies between them where
+        crossings are rare and independent, and above the truth where they come in clumps.
+
         A deterministic quantity (std 0) counts the crossings of its mean. Works under ``jax.jit`` and
         ``jax.grad`` (the levels and ``start`` are not differentiated)."""
         from ._crossings import (
@@ -248,7 +253,9 @@ class MomentResult(_Labelled, _Covariance):
         lower_bound = jax.lax.cummax(jnp.where(counted, outside, 0.0), axis=0)
         return CrossingExceedance(
             levels=jnp.asarray(a),
-            probability=jnp.where(counted, 1.0 - (1.0 - at_start) * jnp.exp(-crossings), 0.0),
+            # 1 - (1 - P0) exp(-N) written as a sum of two terms >= 0: no cancellation at small P0 and N, where the
+            # difference lost every digit below about 1e-16 / P (a few per cent at 1e-14)
+            probability=jnp.where(counted, at_start - (1.0 - at_start) * jnp.expm1(-crossings), 0.0),
             upper_bound=jnp.where(counted, jnp.minimum(1.0, at_start + crossings), 0.0),
             expected_crossings=crossings,
             times=times,

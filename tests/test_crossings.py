@@ -439,29 +439,45 @@ def test_displacement_and_observable_peaks_between_steps_have_the_gradient_of_a_
     np.testing.assert_allclose(float(grad), fd[0] + 3.7 * fd[1], rtol=1e-5)
 
 
+@pytest.mark.parametrize("initially", ["at rest", "spread"])
 @pytest.mark.parametrize("method", ["steps", "rice"])
-def test_lower_bound_is_the_largest_exceedance_at_one_time_since_the_start(method):
+def test_lower_bound_is_the_largest_exceedance_at_one_time_since_the_start(method, initially):
     """``lower_bound``: the largest P(|X(t)| >= a) over the saved times from ``start`` (0 before), against
-    SciPy's normal distribution from SL's moments, for an oscillator whose response grows from rest under a
-    static load; and its derivative in the stiffness (jitted) against a central difference."""
+    SciPy's normal distribution from SL's moments, for an oscillator under a static load whose response grows
+    from rest, or decays from a spread initial state (larger before ``start`` than after: the maximum is
+    taken from the start, not from t = 0); at or under ``upper_bound`` and the Poisson estimate; and, from
+    rest, its derivative in the stiffness (jitted) against a central difference."""
     from scipy.stats import norm
+
+    spread = None if initially == "at rest" else np.diag([0.01**2, (0.01 * OMEGA) ** 2])
 
     def solve(k):
         system = pg.System(mass=[[1.0]], stiffness=[[k]], damping=[[2 * 0.3 * OMEGA]], load=[1.0],
                            noise_input=[[1.0]], spectral_density=1.0, dof_names=["x"])  # fmt: skip
-        return pg.solve_moments(system, dt=1e-3, n_steps=300, deflection_lag=True, covariance_dofs=["x"])
+        return pg.solve_moments(system, dt=1e-3, n_steps=300, deflection_lag=True, covariance_dofs=["x"],
+                                initial_covariance=spread)  # fmt: skip
 
     levels, start = np.array([0.01, 0.02]), 0.05
     sl = solve(OMEGA**2)
-    bound = sl.peak_exceedance("u:x", levels, start=start, method=method).lower_bound
+    estimate = sl.peak_exceedance("u:x", levels, start=start, method=method)
+    bound = estimate.lower_bound
+    if method == "steps":  # Rice's count is integrated by trapezoids: a bound only up to their error
+        assert np.all(np.asarray(estimate.upper_bound) >= np.asarray(bound) * (1 - 1e-12))
+    assert np.all(np.asarray(estimate.probability) >= np.asarray(bound) * (1 - 1e-12))
     m, s, t = (np.asarray(x) for x in (sl.mean_u[:, 0], sl.std_u[:, 0], sl.times))
     with np.errstate(divide="ignore"):  # std 0 at the start from rest, before the window
         outside = norm.sf((levels - m[:, None]) / s[:, None]) + norm.cdf((-levels - m[:, None]) / s[:, None])
+    if spread is not None:  # the spread decays: every time before the start is beyond the window's largest
+        before, after = outside[t < start - 1e-12], outside[t >= start - 1e-12]
+        assert np.all(np.min(before, axis=0) > np.max(after, axis=0))
     outside[t < start - 1e-12] = 0.0
     assert bound.dtype == jnp.float64 and 1e-6 < float(bound[-1, 1]) < float(bound[-1, 0]) < 0.5
     np.testing.assert_allclose(
         np.asarray(bound), np.maximum.accumulate(outside, axis=0), rtol=1e-10, atol=1e-15
     )
+
+    if spread is not None:
+        return  # the derivative once per method (its compilation is most of this test's time)
 
     def lower(log_k):
         sl = solve(OMEGA**2 * jnp.exp(log_k))
@@ -470,6 +486,30 @@ def test_lower_bound_is_the_largest_exceedance_at_one_time_since_the_start(metho
     h = 1e-5
     fd = (float(lower(h)) - float(lower(-h))) / (2 * h)
     np.testing.assert_allclose(float(jax.jit(jax.grad(lower))(0.0)), fd, rtol=1e-5)
+
+
+def test_lower_bound_of_a_force_follows_its_moving_barrier():
+    """A contact force's ``lower_bound`` at a level F: P(|delta| >= F / k(t)) with the mesh stiffness k(t) at
+    each saved time, against SciPy from SL's deflection moments; a level of 0 N is reached at once (1 from the
+    start, 0 before); at or under ``upper_bound``."""
+    from scipy.stats import norm
+
+    system, start = mesh_oscillator(), 0.1
+    sl = pg.solve_moments(system, dt=1e-3, n_steps=400, deflection_lag=True)
+    force = float(jnp.max(jnp.abs(sl.force_mean[:, 0])) + 2.5 * jnp.max(sl.force_std[:, 0]))
+    estimate = sl.peak_exceedance("force:c", [0.0, force], start=start, system=system)
+    t, m, s = (np.asarray(x) for x in (sl.times, sl.mean_delta[:, 0], sl.std_delta[:, 0]))
+    barrier = force / (OMEGA**2 * (1.0 + 0.4 * np.sin(2 * np.pi * 7.0 * t)))  # the mesh_oscillator's k(t)
+    assert np.isclose(barrier[100], force / float(system.contact_inputs(t[100])[0]), rtol=1e-12)
+    with np.errstate(divide="ignore", invalid="ignore"):  # std 0 at the start from rest
+        outside = norm.sf((barrier - m) / s) + norm.cdf((-barrier - m) / s)
+    counted = t >= start - 1e-12
+    outside[~counted] = 0.0
+    bound = np.asarray(estimate.lower_bound)
+    np.testing.assert_allclose(bound[:, 1], np.maximum.accumulate(outside), rtol=1e-10, atol=1e-15)
+    assert 1e-3 < bound[-1, 1] < 0.2  # a level that is neither certain nor out of reach
+    np.testing.assert_array_equal(bound[:, 0], counted.astype(float))
+    assert np.all(np.asarray(estimate.upper_bound) >= bound * (1 - 1e-12))
 
 
 def _scaled(stiffness, factor):
