@@ -302,10 +302,10 @@ def peak_force_summary(study: PlanetaryStudy) -> dict | None:
         cumulative = np.cumsum(np.asarray(counts)[-1])
         entry = {"bin_width_N": float(edges[1] - edges[0]), "top_edge_N": float(edges[-1])}
         entry["beyond_top_edge_fraction"] = float((mc.n_samples - cumulative[-1]) / mc.n_samples)
-        # SL's estimate at the same levels (the bins' upper edges), by the end: ideally 1 - the quantile
-        sl_end = None if study.sl_peaks is None else study.sl_peaks[quantity]["probability"][-1]
-        sl_lower = None if study.sl_peaks is None else study.sl_peaks[quantity].get("lower_bound")
-        reach, reach_lower = {}, {}
+        # SL's estimate and its lower bound at the same levels (the bins' upper edges), by the end: ideally
+        # 1 - the quantile
+        sl_end = None if study.sl_peaks is None else study.sl_peaks[quantity]
+        reach = {"sl_reach_probability": {}, "sl_lower_bound_reach_probability": {}}
         for label, per_mille in levels.items():
             # whole numbers of samples (at most n_samples, so doubles hold them exactly): the sample count the
             # quantile needs below it, and the 10 beyond it that make it worth stating
@@ -313,12 +313,12 @@ def peak_force_summary(study: PlanetaryStudy) -> dict | None:
             reached = np.nonzero(cumulative >= needed)[0]
             stated = mc.n_samples - needed >= 10 and reached.size
             entry[f"{label}_N"] = float(edges[reached[0] + 1]) if stated else None
-            reach[label] = float(sl_end[reached[0]]) if stated and sl_end is not None else None
-            reach_lower[label] = float(sl_lower[-1][reached[0]]) if stated and sl_lower is not None else None
+            for key, field in zip(reach, ("probability", "lower_bound")):
+                reach[key][label] = (
+                    float(sl_end[field][-1][reached[0]]) if stated and sl_end is not None else None
+                )
         if sl_end is not None:
-            entry["sl_reach_probability"] = reach
-        if sl_lower is not None:
-            entry["sl_lower_bound_reach_probability"] = reach_lower
+            entry.update(reach)
         per_mesh[quantity.split(":", 1)[1]] = entry
     return dict(
         note="peak (largest magnitude) of each meshing force of each sample over every step from "
@@ -384,10 +384,9 @@ def peak_force_figure(study: PlanetaryStudy):
                 keep = p >= 1.0 / mc.n_samples
                 ax.semilogy(estimate["levels"][keep] / 1e3, p[keep], ":", color=f"C{k}", lw=1.5,
                             label=f"{', '.join(names)}, SL's estimate by t = {times[-1]:.3g} s")  # fmt: skip
-                if "lower_bound" in estimate:
-                    ax.fill_between(estimate["levels"][keep] / 1e3, estimate["lower_bound"][-1][keep], p[keep],
-                                    color=f"C{k}", alpha=0.12, lw=0,
-                                    label=f"{', '.join(names)}, SL: from its lower bound to its estimate")  # fmt: skip
+                ax.fill_between(estimate["levels"][keep] / 1e3, estimate["lower_bound"][-1][keep], p[keep],
+                                color=f"C{k}", alpha=0.12, lw=0,
+                                label=f"{', '.join(names)}, SL: from its lower bound to its estimate")  # fmt: skip
         ax.set_xlim(left=max(0.9 * min(certain), 0.0))
         ax.set_title(title)
         ax.set_xlabel("meshing force level (kN)")
