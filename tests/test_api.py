@@ -61,17 +61,17 @@ def test_grouped_checkpoints_give_the_same_gradient_with_less_memory():
     differences above), also with a group left incomplete, and its compiled reverse pass needs less memory."""
     p = jnp.array([5.0e4, 0.02])
     grad = jax.jit(jax.grad(_std_and_mean), static_argnums=(1, 2, 3))
-    want = grad(p, 1, 60, 2)  # 30 saved blocks
-    got = grad(p, 7, 60, 2)  # 4 groups of 7 blocks, 2 blocks left over
+    want = grad(p, 1, 400, 1)  # 400 saved blocks
+    got = grad(p, 7, 400, 1)  # 57 groups of 7 blocks, 1 block left over
     assert got.dtype == jnp.float64
     np.testing.assert_allclose(got, want, rtol=1e-12)
 
-    def temporary_bytes(k):
+    def temporary_bytes(k):  # the programs called above: no compilation of their own
         return grad.lower(p, k, 400, 1).compile().memory_analysis().temp_size_in_bytes
 
     # kept per step whatever the grouping: the fixed point's solution and its tangent rule's quantities, here about
-    # twice the 2-DOF model's state; grouped, 40 states are kept instead of 400 (measured: 0.66 of the memory)
-    assert temporary_bytes(20) < 0.8 * temporary_bytes(1)
+    # twice the 2-DOF model's state; grouped, 58 states are kept instead of 400 (measured: 0.73 of the memory)
+    assert temporary_bytes(7) < 0.8 * temporary_bytes(1)
 
 
 def test_gradient_wrt_the_initial_covariance_is_symmetric_and_matches_central_differences():

@@ -34,24 +34,12 @@ def test_out_inside_a_read_only_folder_is_refused(tmp_path, capsys):
         locked.chmod(0o700)
 
 
-def test_main_job_on_its_default_output_folder_in_a_fresh_folder(tmp_path, monkeypatch, capsys):
-    """`pgtjax run` as the README gives it, without --out, where no pgtjax-output exists yet (it failed when the
-    Monte Carlo started: its checkpoint folder did not exist); tiny sizes."""
-    import json
-
-    monkeypatch.chdir(tmp_path)
-    argv = ["run", "--samples", "20", "--periods", "0.01", "--no-sweeps", "--no-sensitivities", "--quiet"]
-    assert main(argv) == 0, capsys.readouterr().err
-    manifest = json.loads((tmp_path / "pgtjax-output" / "planetary" / "manifest.json").read_text())
-    assert manifest["status"] == "complete"
-    names = {f["name"] for f in manifest["files"]}
-    assert {"summary.json", "planetary_mc.npz", "planetary_sl_force.npz"} <= names
-
-
-def test_parameters_toml_reproduces_the_run_and_set_overrides_name_their_key(tmp_path, capsys):
+def test_parameters_toml_reproduces_the_run_and_set_overrides_name_their_key(tmp_path, monkeypatch, capsys):
     """A run with --set writes parameters.toml (every entry, the override applied); a second run from that file
     alone gives the same summary.json and results (tiny sizes, Monte Carlo and sweeps included); every number
-    in summary.json carries a unit; README.txt lists every file; a misspelt --set key is named."""
+    in summary.json carries a unit; README.txt lists every file; a misspelt --set key is named. The second run
+    is `pgtjax run` as the README gives it, without --out, in a folder where no pgtjax-output exists yet (it
+    failed when the Monte Carlo started: its checkpoint folder did not exist)."""
     import json
 
     import numpy as np
@@ -60,11 +48,18 @@ def test_parameters_toml_reproduces_the_run_and_set_overrides_name_their_key(tmp
     from pgtjax._summary import missing_units
 
     small = ["--samples", "20", "--periods", "0.01", "--no-sensitivities", "--quiet", "--peak-forces", "30"]
-    first, second = tmp_path / "first", tmp_path / "second"
+    first, fresh = tmp_path / "first", tmp_path / "fresh"
+    second = fresh / "pgtjax-output" / "planetary"  # the default output folder
     assert main(["run", *small, "--set", "ring.rim_thickness=0.1", "--out", str(first)]) == 0
     written = (first / "parameters.toml").read_text()
     assert "rim_thickness = 0.1\n" in written
-    assert main(["run", *small, "--params", str(first / "parameters.toml"), "--out", str(second)]) == 0
+    fresh.mkdir()
+    monkeypatch.chdir(fresh)
+    assert main(["run", *small, "--params", str(first / "parameters.toml")]) == 0, capsys.readouterr().err
+    manifest = json.loads((second / "manifest.json").read_text())
+    assert manifest["status"] == "complete"
+    names = {f["name"] for f in manifest["files"]}
+    assert {"summary.json", "planetary_mc.npz", "planetary_sl_force.npz"} <= names
     assert (second / "parameters.toml").read_text() == written.replace(str(first), str(second))
     summary = [json.loads((d / "summary.json").read_text()) for d in (first, second)]
     assert summary[0] == summary[1]

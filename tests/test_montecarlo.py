@@ -834,8 +834,8 @@ def test_saved_scan_gives_each_step_its_own_input_when_a_block_is_formed_in_part
 
 @pytest.mark.parametrize("model", ["gear_pair", "chain"])
 def test_long_blocks_drawn_in_parts_give_the_whole_blocks_statistics(monkeypatch, model):
-    """A saved block drawn a part at a time (its draws and step inputs formed for 4 of its 36 steps at once,
-    or 5 + 5 + 3 of 13) gives the whole blocks' statistics: double for double in physical coordinates and on
+    """A saved block drawn a part at a time (its draws and step inputs formed for 5 + 5 + 3 of its 13 steps: whole
+    parts and a part left over; two blocks) gives the whole blocks' statistics: double for double in physical coordinates and on
     the gear pair (the same normals, elementwise steps); to rounding in a chain's eigen-coordinates, whose step
     inputs XLA forms in batches of another length."""
     from pgtjax import _montecarlo
@@ -845,7 +845,7 @@ def test_long_blocks_drawn_in_parts_give_the_whole_blocks_statistics(monkeypatch
         system, obs, dt = gp.build(), None, 1e-5
     else:
         (system, obs), dt = _chain_with_contacts(), 0.01
-    for n_steps, save_every, rows in [(72, 36, 4), (26, 13, 5)]:
+    for n_steps, save_every, rows in [(26, 13, 5)]:
         for propagation in ("eigen", "physical"):
             runs = {}
             for parts in (False, True):
