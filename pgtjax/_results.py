@@ -153,8 +153,8 @@ class MomentResult(_Labelled, _Covariance):
 
         A force level ``F``: ``|f| >= F`` puts the deflection outside barriers that move with the contact's
         inputs (``b + F / k(t)`` for :class:`pgtjax.Backlash`). Pass the ``system`` solved (its law must
-        implement ``deflections_at_force``; only its contact names and count of DOFs are checked against the
-        result, so pass the very system, with the stiffness it was solved with).
+        implement ``deflections_at_force``; its contact names, DOFs and mean force at one saved time are checked
+        against the result).
 
         ``lower_bound``, the largest probability of being beyond a level at one saved time since ``start``,
         bounds the probability from below with no assumption on the crossings, and ``upper_bound`` from above
@@ -284,12 +284,35 @@ class MomentResult(_Labelled, _Covariance):
             return law.deflections_at_force(levels, inputs, clearance)
 
         try:
-            return jax.vmap(barriers)(self.times)
+            upper_lower = jax.vmap(barriers)(self.times)
         except NotImplementedError:
             raise ValueError(
                 f"the peak of {quantity!r} needs the deflections at a force level, which the contact law "
                 f"{type(law).__name__} does not give (it implements no `deflections_at_force`)"
             ) from None
+        self._check_force_law(system, contact)
+        return upper_lower
+
+    def _check_force_law(self, system, contact: int) -> None:
+        """Refuse a ``system`` whose contact law or inputs (a mesh stiffness) differ from those solved: its mean
+        force for SL's deflection, at the saved time of the largest mean force, must be the one SL saved. (Not
+        checked on traced values, e.g. under ``jax.jit``.)"""
+        leaves = jax.tree.leaves((self.times, self.force_mean, self.mean_delta, self.std_delta, system))
+        if any(isinstance(x, jax.core.Tracer) for x in leaves):
+            return
+        saved = np.asarray(self.force_mean[:, contact])
+        j = int(np.argmax(np.abs(saved)))
+        inputs = system.contact_inputs(self.times[j])
+        mean, _ = system.contacts.law.force_moments(
+            self.mean_delta[j], self.std_delta[j], inputs, system.contacts.clearance
+        )
+        got = float(np.asarray(mean)[contact])
+        if not abs(got - saved[j]) <= 1e-8 * abs(saved[j]) + 1e-300:
+            raise ValueError(
+                f"`system` gives a mean force of {got:.10g} N on contact {self.contact_names[contact]!r} at "
+                f"t = {float(self.times[j]):g} s for the deflection solved, the result {float(saved[j]):.10g} N: "
+                "pass the system that was solved (with the contact law and stiffness it was solved with)"
+            )
 
     @classmethod
     def from_saved(cls, system, times, saved, *, criterion, observables=None, covariance_dofs=()):

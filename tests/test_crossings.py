@@ -91,8 +91,9 @@ def test_sl_peaks_of_an_oscillator_match_monte_carlo_in_the_tail_and_bound_it():
 @pytest.mark.parametrize("start", [None, 0.3])
 def test_sl_peak_probability_has_the_gradient_of_a_central_difference_and_runs_jitted(start):
     """d P(peak >= a) / d log k through the SL recursion and Rice's rate, against a central difference, with
-    the window from rest (where u and v start fully correlated) and from 0.3 s; and the same value and
-    gradient under jax.jit, as a design's objective runs."""
+    the window from rest (where u and v start fully correlated) and from 0.3 s, jitted as a design's objective
+    runs (the same program gives the central difference's values; op-by-op gradients through SL are checked in
+    test_api.py)."""
     level = 0.01
 
     def probability(log_k):
@@ -101,13 +102,11 @@ def test_sl_peak_probability_has_the_gradient_of_a_central_difference_and_runs_j
         return sl.peak_exceedance("u:x", [level], start=start).probability[-1, 0]
 
     x, h = np.log(OMEGA**2), 1e-5
-    grad = float(jax.grad(probability)(x))
-    fd = float((probability(x + h) - probability(x - h)) / (2 * h))
-    assert 0.01 < float(probability(x)) < 0.99
+    with_values = jax.jit(jax.value_and_grad(probability))
+    value, grad = (float(v) for v in with_values(x))
+    fd = (float(with_values(x + h)[0]) - float(with_values(x - h)[0])) / (2 * h)
+    assert 0.01 < value < 0.99
     np.testing.assert_allclose(grad, fd, rtol=1e-5)
-    jitted = jax.jit(jax.value_and_grad(probability))(x)
-    np.testing.assert_allclose(float(jitted[0]), float(probability(x)), rtol=1e-12)
-    np.testing.assert_allclose(float(jitted[1]), grad, rtol=1e-10)
 
 
 def test_start_probability_and_trapezoids():
@@ -162,14 +161,14 @@ def test_sl_peaks_refuse_what_they_cannot_estimate():
             call()
 
 
-def mesh_oscillator(zeta=0.3, variation=0.4, mesh_hz=7.0, clearance=0.0):
+def mesh_oscillator(zeta=0.3, variation=0.4, mesh_hz=7.0, clearance=0.0, load=0.0):
     """The oscillator held by a contact (Backlash) whose stiffness varies as k0 (1 + variation sin(2 pi f t)):
     without clearance the system is linear (time-varying), so its response is Gaussian and SL exact. The
     force k(t) delta reaches F where |delta| = F / k(t): a barrier that moves with the stiffness."""
     stiffness = pg.FourierSeries(
         OMEGA**2, sin_coefficients=[variation * OMEGA**2], frequency=2 * np.pi * mesh_hz
     )
-    return pg.System(mass=[[1.0]], stiffness=[[0.0]], damping=[[2 * zeta * OMEGA]], load=[0.0],
+    return pg.System(mass=[[1.0]], stiffness=[[0.0]], damping=[[2 * zeta * OMEGA]], load=[load],
                      noise_input=[[1.0]], spectral_density=1.0, dof_names=["x"],
                      contacts=pg.Contacts([[1.0]], stiffness, [clearance], names=["c"]))  # fmt: skip
 
@@ -414,10 +413,13 @@ def test_displacement_and_observable_peaks_between_steps_have_the_gradient_of_a_
         observables = pg.Observables(Rows(jnp.exp(log_s)), names=["y"])
         return pg.solve_moments(system, dt=2e-3, n_steps=150, deflection_lag=True, observables=observables)
 
-    ref = solve(0.0)
-    i = ref.dof(dof)
-    level_u = float(jnp.max(jnp.abs(ref.mean_u[:, i])) + 1.5 * jnp.max(ref.std_u[:, i]))
-    level_y = float(jnp.max(jnp.abs(ref.mean_obs[:, 0])) + 2.0 * jnp.max(ref.std_obs[:, 0]))
+    # the levels: max |mean| + 1.5 std of the displacement and + 2 std of the observable at s = 1, rounded (taken
+    # from a run once rather than compiling a forward solve here; the check of the values below keeps them apt)
+    level_u, level_y = {
+        "constant map": (0.0546, 0.1003),
+        "Woodbury": (0.0548, 0.1015),
+        "dense": (0.0219, 0.1307),
+    }[path]
 
     def probabilities(log_s):
         sl = solve(log_s)
@@ -520,11 +522,11 @@ def _scaled(stiffness, factor):
 
 
 def test_sl_contact_peaks_refuse_what_they_cannot_estimate():
-    system = mesh_oscillator(clearance=0.01)
-    sl = pg.solve_moments(system, dt=1e-3, n_steps=20, deflection_lag=True)
-    plain = pg.solve_moments(system, dt=1e-3, n_steps=20)
-    with_y = pg.solve_moments(system, dt=1e-3, n_steps=20, deflection_lag=True,
-                              observables=pg.Observables([[2.0]], names=["y"]))  # fmt: skip
+    system = mesh_oscillator(clearance=0.01, load=50.0)  # loaded: a mean force that tells the stiffness
+    sl = pg.solve_moments(system, dt=1e-3, n_steps=20, deflection_lag=True,
+                          observables=pg.Observables([[2.0]], names=["y"]))  # fmt: skip
+    # as solved without the step lags (one compiled solve for the whole test)
+    plain = eqx.tree_at(lambda r: (r.cov_u_lag, r.cov_delta_lag, r.cov_obs_lag), sl, (None, None, None))
 
     class Cubic(pg.ContactLaw):  # a law that does not give its deflection at a force level
         def force(self, delta, k, b):
@@ -544,10 +546,8 @@ def test_sl_contact_peaks_refuse_what_they_cannot_estimate():
     cases = [
         (lambda: plain.peak_exceedance("delta:c", [0.1]), r"solve with `deflection_lag=True` \(and save_every=1\)"),
         (lambda: sl.peak_exceedance("delta:d", [0.1]), "unknown contact 'd'"),
-        (lambda: sl.peak_exceedance("obs:y", [0.1]), "unknown observable 'y'"),
-        (lambda: plain.peak_exceedance("obs:y", [0.1]), "unknown observable 'y'"),
-        (lambda: eqx.tree_at(lambda r: r.cov_obs_lag, with_y, None).peak_exceedance("obs:y", [0.1]),
-         r"solve with `deflection_lag=True` \(and save_every=1\)"),
+        (lambda: sl.peak_exceedance("obs:z", [0.1]), "unknown observable 'z'"),
+        (lambda: plain.peak_exceedance("obs:y", [0.1]), r"solve with `deflection_lag=True` \(and save_every=1\)"),
         (lambda: sl.peak_exceedance("velocity:x", [0.1]), "or an observable 'obs:<observable>'"),
         (lambda: sl.peak_exceedance("delta:c", [0.1], method="rice"), "estimates displacements .* only"),
         (lambda: sl.peak_exceedance("u:x", [0.1], method="exact"), "`method` must be 'auto', 'steps' or"),
@@ -555,6 +555,8 @@ def test_sl_contact_peaks_refuse_what_they_cannot_estimate():
         (lambda: plain.peak_exceedance("u:x", [0.1], method="steps"), r"`deflection_lag=True` \(and save_every"),
         (lambda: sl.peak_exceedance("force:c", [0.1]), "needs the `system` solved"),
         (lambda: sl.peak_exceedance("force:c", [0.1], system=oscillator()), "pass the system that was solved"),
+        (lambda: sl.peak_exceedance("force:c", [0.1], system=mesh_oscillator(0.3, 0.3, clearance=0.01, load=50.0)),
+         "`system` gives a mean force of .* N on contact 'c' at t = .* s for the deflection solved"),
         (lambda: sl.peak_exceedance("force:c", [0.1], system=cubic), "Cubic does not give"),
         (lambda: pg.solve_moments(system, dt=1e-3, n_steps=20, deflection_lag=1), "`deflection_lag` must"),
         (lambda: pg.solve_moments(system, dt=1e-3, n_steps=20, save_every=2, deflection_lag=True),
