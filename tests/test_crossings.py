@@ -4,6 +4,8 @@ integration of the joint Gaussian density, the step-crossing probability against
 covariances against the one-step map, and the probabilities against Monte Carlo's peaks counted over every
 step."""
 
+import re
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -522,9 +524,10 @@ def _scaled(stiffness, factor):
 
 
 def test_sl_contact_peaks_refuse_what_they_cannot_estimate():
-    system = mesh_oscillator(clearance=0.01, load=50.0)  # loaded: a mean force that tells the stiffness
-    sl = pg.solve_moments(system, dt=1e-3, n_steps=20, deflection_lag=True,
-                          observables=pg.Observables([[2.0]], names=["y"]))  # fmt: skip
+    system = mesh_oscillator(clearance=0.01, load=50.0)
+    solve = dict(dt=1e-3, n_steps=20, deflection_lag=True, observables=pg.Observables([[2.0]], names=["y"]))
+    sl = pg.solve_moments(system, **solve)
+    unloaded = pg.solve_moments(mesh_oscillator(clearance=0.01), **solve)  # no mean force; the same program
     # as solved without the step lags (one compiled solve for the whole test)
     plain = eqx.tree_at(lambda r: (r.cov_u_lag, r.cov_delta_lag, r.cov_obs_lag), sl, (None, None, None))
 
@@ -543,6 +546,15 @@ def test_sl_contact_peaks_refuse_what_they_cannot_estimate():
     np.testing.assert_array_equal(
         np.asarray(sl.peak_exceedance("force:c", [0.0], system=system).probability), 1.0
     )
+    # the systems solved pass the check, also under a jit closing over the result and the system
+    levels = [0.5 * float(jnp.max(jnp.abs(sl.force_mean)))]
+    eager = sl.peak_exceedance("force:c", levels, system=system).probability
+    jitted = jax.jit(lambda: sl.peak_exceedance("force:c", levels, system=system).probability)()
+    np.testing.assert_allclose(np.asarray(jitted), np.asarray(eager), rtol=1e-12)
+    assert 0.0 < float(eager[-1, 0]) < 1.0
+    assert np.isfinite(
+        unloaded.peak_exceedance("force:c", [0.1], system=mesh_oscillator(clearance=0.01)).probability
+    ).all()
     cases = [
         (lambda: plain.peak_exceedance("delta:c", [0.1]), r"solve with `deflection_lag=True` \(and save_every=1\)"),
         (lambda: sl.peak_exceedance("delta:d", [0.1]), "unknown contact 'd'"),
@@ -556,7 +568,7 @@ def test_sl_contact_peaks_refuse_what_they_cannot_estimate():
         (lambda: sl.peak_exceedance("force:c", [0.1]), "needs the `system` solved"),
         (lambda: sl.peak_exceedance("force:c", [0.1], system=oscillator()), "pass the system that was solved"),
         (lambda: sl.peak_exceedance("force:c", [0.1], system=mesh_oscillator(0.3, 0.3, clearance=0.01, load=50.0)),
-         "`system` gives a mean force of .* N on contact 'c' at t = .* s for the deflection solved"),
+         "`system` gives the force on contact 'c' at t = .* s a mean of .* for the deflection solved"),
         (lambda: sl.peak_exceedance("force:c", [0.1], system=cubic), "Cubic does not give"),
         (lambda: pg.solve_moments(system, dt=1e-3, n_steps=20, deflection_lag=1), "`deflection_lag` must"),
         (lambda: pg.solve_moments(system, dt=1e-3, n_steps=20, save_every=2, deflection_lag=True),
@@ -565,3 +577,10 @@ def test_sl_contact_peaks_refuse_what_they_cannot_estimate():
     for call, message in cases:
         with pytest.raises(ValueError, match=message):
             call()
+    # without a mean load, the force's std tells the stiffness
+    with pytest.raises(ValueError, match="for the deflection solved, the result saved") as refused:
+        unloaded.peak_exceedance("force:c", [0.1], system=mesh_oscillator(0.3, 0.3, clearance=0.01))
+    saved_mean, saved_std = (
+        float(x) for x in re.search(r"saved (\S+) N and (\S+) N", str(refused.value)).groups()
+    )
+    assert abs(saved_mean) < 1e-9 * saved_std, str(refused.value)

@@ -834,10 +834,10 @@ def test_saved_scan_gives_each_step_its_own_input_when_a_block_is_formed_in_part
 
 @pytest.mark.parametrize("model", ["gear_pair", "chain"])
 def test_long_blocks_drawn_in_parts_give_the_whole_blocks_statistics(monkeypatch, model):
-    """A saved block drawn a part at a time (its draws and step inputs formed for 5 + 5 + 3 of its 13 steps: whole
-    parts and a part left over; two blocks) gives the whole blocks' statistics: double for double in physical coordinates and on
-    the gear pair (the same normals, elementwise steps); to rounding in a chain's eigen-coordinates, whose step
-    inputs XLA forms in batches of another length."""
+    """A saved block drawn a part at a time (its draws and step inputs formed for 5 + 5 + 3 of its 13 steps:
+    whole parts and a part left over; two blocks) gives the whole blocks' statistics: double for double in
+    physical coordinates and on the gear pair (the same normals, elementwise steps); to rounding in a chain's
+    eigen-coordinates, whose step inputs XLA forms in batches of another length."""
     from pgtjax import _montecarlo
     from pgtjax.models import gear_pair as gp
 
@@ -845,27 +845,27 @@ def test_long_blocks_drawn_in_parts_give_the_whole_blocks_statistics(monkeypatch
         system, obs, dt = gp.build(), None, 1e-5
     else:
         (system, obs), dt = _chain_with_contacts(), 0.01
-    for n_steps, save_every, rows in [(26, 13, 5)]:
-        for propagation in ("eigen", "physical"):
-            runs = {}
-            for parts in (False, True):
-                monkeypatch.setattr(
-                    _montecarlo, "_block_rows", lambda *a, rows=rows, parts=parts: rows if parts else a[5]
+    n_steps, save_every, rows = 26, 13, 5
+    for propagation in ("eigen", "physical"):
+        runs = {}
+        for parts in (False, True):
+            monkeypatch.setattr(
+                _montecarlo, "_block_rows", lambda *a, rows=rows, parts=parts: rows if parts else a[5]
+            )
+            runs[parts] = pg.monte_carlo(
+                system, n_samples=64, key=jax.random.key(1), dt=dt, n_steps=n_steps, save_every=save_every,
+                observables=obs, propagation=propagation, progress=False,
+            )  # fmt: skip
+        assert float(np.max(runs[False].std_u)) > 0.0
+        for name in _EVERY_STATISTIC:
+            a, b = np.asarray(getattr(runs[False], name)), np.asarray(getattr(runs[True], name))
+            assert b.dtype == np.float64
+            if model == "gear_pair" or propagation == "physical":
+                np.testing.assert_array_equal(a, b, err_msg=f"{name} {propagation} {save_every}")
+            else:
+                np.testing.assert_allclose(
+                    a, b, rtol=0, atol=1e-13 * np.max(np.abs(a)), err_msg=f"{name} {save_every}"
                 )
-                runs[parts] = pg.monte_carlo(
-                    system, n_samples=64, key=jax.random.key(1), dt=dt, n_steps=n_steps, save_every=save_every,
-                    observables=obs, propagation=propagation, progress=False,
-                )  # fmt: skip
-            assert float(np.max(runs[False].std_u)) > 0.0
-            for name in _EVERY_STATISTIC:
-                a, b = np.asarray(getattr(runs[False], name)), np.asarray(getattr(runs[True], name))
-                assert b.dtype == np.float64
-                if model == "gear_pair" or propagation == "physical":
-                    np.testing.assert_array_equal(a, b, err_msg=f"{name} {propagation} {save_every}")
-                else:
-                    np.testing.assert_allclose(
-                        a, b, rtol=0, atol=1e-13 * np.max(np.abs(a)), err_msg=f"{name} {save_every}"
-                    )
 
 
 def test_rows_drawn_at_once_fit_the_budget_and_prefer_a_divisor(monkeypatch):
