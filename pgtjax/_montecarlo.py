@@ -66,6 +66,7 @@ from ._parallel import (
     refuse_together,
     wide_vectors,
 )
+from ._progress import progress_bar
 from ._random import block_normals, is_threefry
 from ._random import normal as standard_normal
 from ._random import stream as normals_stream
@@ -84,19 +85,6 @@ from ._system import (
     validate_system,
     validate_time_grid,
 )
-
-
-def _progress_bar(total: int, enabled: bool):
-    """A tqdm bar, or None. Imported only when asked for: ``tqdm.auto`` warns at import time in a Jupyter
-    kernel without ipywidgets, even for a run without a bar."""
-    if not enabled:
-        return None
-    try:
-        from tqdm.auto import tqdm
-    except ImportError:  # pragma: no cover - progress bars are a convenience, not a requirement
-        return None
-    return tqdm(total=total, desc="Monte Carlo", unit="sample")
-
 
 PROPAGATIONS = ("auto", "eigen", "physical")
 _INITIAL_STATE_TAG = 0xFFFFFFFF  # fold_in tag of a sample's initial-state draw (block indices are smaller)
@@ -884,9 +872,11 @@ def monte_carlo(
             saved = load_checkpoint(checkpoint, description, what="monte_carlo", absent=absent)
             first_round = int(saved.pop("next_round"))
             moments = _Moments.from_arrays(saved)
-    bar = _progress_bar(n_samples, progress and proc == 0)
-    if bar is not None and first_round:
-        bar.update(min(first_round * round_size, n_samples))
+    bar = None
+    if progress and proc == 0:
+        bar = progress_bar(
+            n_samples, "Monte Carlo", "samples", initial=min(first_round * round_size, n_samples)
+        )
     with fail_together(
         "monte_carlo", n_proc > 1, stage="during the run"
     ):  # one failing stops all, at the end

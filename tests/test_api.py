@@ -214,7 +214,7 @@ def test_jit_of_value_and_grad_with_concrete_initial_state():
     assert np.isfinite(float(grad))
 
 
-def test_numpy_integer_sizes_accepted_and_bools_refused():
+def test_numpy_integer_sizes_accepted_and_bools_refused(capsys):
     """Sizes may be NumPy integers (as from np.arange or a config array); each solver runs with them and
     gives what the same Python ints give. A bool is not a size."""
     system = pg.System(mass=[[1.0]], stiffness=[[4.0]], damping=[[0.2]], noise_input=[[1.0]], load=[0.5])
@@ -237,8 +237,13 @@ def test_numpy_integer_sizes_accepted_and_bools_refused():
     np.testing.assert_array_equal(
         mc.std_u,
         pg.monte_carlo(
-            system, n_samples=40, chunk_size=16, n_steps=6, key=jax.random.key(0), progress=False, **kw
+            system, n_samples=40, chunk_size=16, n_steps=6, key=jax.random.key(0), progress=True, **kw
         ).std_u,
     )
+    # progress on a stream that is not a terminal (here captured): a plain line per batch of 16 samples
+    lines = capsys.readouterr().err.splitlines()
+    assert [line.split(" samples")[0] for line in lines] == [
+        f"Monte Carlo: {n} / 40" for n in (16, 32, 40)
+    ], lines
     with pytest.raises(ValueError, match="`n_steps` must be an integer >= 1, got True"):
         pg.solve_moments(system, n_steps=True, **kw)

@@ -210,17 +210,25 @@ def test_gradient_at_a_bound_points_inside():
     np.testing.assert_allclose(grad, expected, rtol=1e-8)
 
 
-def test_resume_continues_the_same_history(tmp_path):
+def test_resume_continues_the_same_history(tmp_path, capsys):
     straight = pd.optimize(
         chain_problem(0.01), max_iter=6, rtol=0.0, gtol=0.0, progress=False, history=tmp_path / "a.json"
     )
     path = tmp_path / "b.json"
     pd.optimize(chain_problem(0.01), max_iter=3, rtol=0.0, gtol=0.0, progress=False, history=path)
     assert len(json.loads(path.read_text())["iterations"]) == 4
+    capsys.readouterr()
     resumed = pd.optimize(
-        chain_problem(0.01), max_iter=6, rtol=0.0, gtol=0.0, progress=False, history=path, resume=True
+        chain_problem(0.01), max_iter=6, rtol=0.0, gtol=0.0, progress=True, history=path, resume=True
     )
     assert [e["iteration"] for e in resumed.history] == list(range(7))
+    # progress on a stream that is not a terminal: a plain line per iteration here (each passes a tenth of
+    # 6), counted from the resumed iteration 3, with the objective reached
+    lines = capsys.readouterr().err.splitlines()
+    assert [line.split(" iterations")[0] for line in lines] == [f"optimize: {k} / 6" for k in (4, 5, 6)], (
+        lines
+    )
+    assert f"J={resumed.history[-1]['objective']:.6g}" in lines[-1], lines
     np.testing.assert_allclose(
         [e["z"] for e in resumed.history], [e["z"] for e in straight.history], rtol=1e-12, atol=1e-14
     )

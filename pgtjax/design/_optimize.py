@@ -18,6 +18,7 @@ import optax.tree_utils as otu
 
 from .._failure import SolverError
 from .._files import write_atomic, write_json
+from .._progress import progress_bar
 from .._system import check_count
 from ._problem import DesignProblem
 
@@ -285,11 +286,11 @@ def optimize(
     if history is not None:
         _save(history, info, optimizer_name, entries, status, z, state, value, grad)
 
-    bar = None
-    if progress:  # imported only when asked for: tqdm.auto warns at import in a kernel without ipywidgets
-        from tqdm.auto import tqdm
-
-        bar = tqdm(total=max_iter, initial=entries[-1]["iteration"], desc="optimize", unit="it", leave=True)
+    bar = (
+        progress_bar(max_iter, "optimize", "iterations", initial=entries[-1]["iteration"])
+        if progress
+        else None
+    )
     try:
         while True:
             k = entries[-1]["iteration"]
