@@ -705,7 +705,8 @@ def monte_carlo(
             those, a small product per step; docs/performance.md, "Peaks of a quantity").
         peak_start: time (s) from which the peaks are taken (the nearest saved time; default ``t0``), e.g.
             after a start-up transient; every histogram time must be at or after it.
-        progress: show a progress bar over chunks.
+        progress: show the progress over chunks (process 0 only): a tqdm bar on a terminal or in a notebook, a
+            line per tenth of the samples on any other stream (a log file).
         propagation: coordinates the samples are stepped in. ``"eigen"``: the real eigenbasis of the
             contact-free Newmark map (:mod:`pgtjax._eigenbasis`; constant K and C only), O(n (nc + n_draws))
             per sample and step instead of O(n^2), the same scheme to rounding; ``"physical"``: the DOFs themselves;

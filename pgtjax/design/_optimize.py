@@ -314,8 +314,8 @@ def optimize(
                 )
             entries.append(entry)
             if bar is not None:
-                bar.update(1)
                 bar.set_postfix(J=f"{entry['objective']:.6g}", grad=f"{entry['gradient_norm']:.2e}")
+                bar.update(1)  # after the postfix: a log line shows this iteration's
             if history is not None:
                 _save(history, info, optimizer_name, entries, status, z, state, value, grad)
     finally:
