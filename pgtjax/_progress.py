@@ -21,11 +21,10 @@ class LogLines:
         self.total, self.desc, self.unit, self.n = int(total), desc, unit, int(initial)
         self.stream = sys.stderr if stream is None else stream
         self.start, self.start_n, self.postfix = time.perf_counter(), self.n, ""
-        self._tenths = self._tenth()  # tenths already shown (those of a resumed run's start too)
-        self._shown_n = self.n
+        self._shown_n = self.n  # the count of the last line (a resumed run's start counts as shown)
 
-    def _tenth(self) -> int:
-        return 10 * self.n // self.total if self.total > 0 else 10
+    def _tenth(self, n: int) -> int:
+        return 10 * n // self.total if self.total > 0 else 10
 
     def _write(self) -> None:
         elapsed = time.perf_counter() - self.start
@@ -42,8 +41,7 @@ class LogLines:
 
     def update(self, n: int = 1) -> None:
         self.n += int(n)
-        if self._tenth() > self._tenths:
-            self._tenths = self._tenth()
+        if self._tenth(self.n) > self._tenth(self._shown_n):
             self._write()
 
     def set_postfix(self, **values) -> None:
