@@ -273,7 +273,10 @@ def _ring_sensitivities() -> dict:
 
 @functools.cache
 def _ring_equilibrium():
-    return pg.static_equilibrium(pm.build(_ring_base()))
+    # evaluated now even when first called inside a trace (the jitted Jacobians below): a cached tracer would
+    # leak into every later use (an UnexpectedTracerError whenever a traced test ran before the eager one)
+    with jax.ensure_compile_time_eval():
+        return pg.static_equilibrium(pm.build(_ring_base()))
 
 
 def _ring_response(x, save_every: int, checkpoint: bool):
