@@ -9,14 +9,14 @@ stiffness ``k`` (N/m) and half-clearance ``b`` (m). The backlash law is thesis E
 
 Statistical linearization replaces ``f`` by ``k_e (delta - mu) + f_0`` for ``delta ~ N(mu, sigma^2)``.
 
-Criteria (the ``criterion`` argument):
+Criteria (the ``criterion`` argument, an :class:`AbstractCriterion` object):
 
-``"force"``
+:class:`ForceCriterion`
     Minimum mean-square force error, thesis Eqs. 3.35-3.38: ``k_e = E[f']``, ``f_0 = E[f]``; closed forms
     Eqs. 3.39-3.42 (the erf forms). We evaluate them through the standard-normal quantities below, which are
     algebraically identical to Eqs. 3.39-3.40 but free of the cancellation that ``erf(V1) - erf(V2)`` suffers
     when ``sigma << b``.
-``"energy"`` (default of the energy family)
+:class:`EnergyCriterion`
     Minimum mean-square error of the potential energy of the *fluctuating* part (thesis ch. 4, Eqs. 4.31-4.43,
     as corrected here): minimizing
     ``E[(P(mu + y) - P(mu) - k_e y^2 / 2 - f_0 y)^2]`` over ``(k_e, f_0)`` with ``y ~ N(0, sigma^2)`` gives, by
@@ -27,7 +27,7 @@ Criteria (the ``criterion`` argument):
 Eq. 4.43 as printed, ``k_e = 2/3 (E[f'] + E[P] / sigma^2)`` with the potential measured about the origin, is
 not offered: under a static load it overestimates ``k_e`` by ``(mu - b)^2 / (3 sigma^2)`` relative and its
 fixed point can settle on a spurious branch (docs/corrections.md, C1). Where ``|mu| <= b`` it equals
-``"energy"``.
+:class:`EnergyCriterion`.
 
 The potential is the continuous one, ``P = k (delta -/+ b)^2 / 2`` outside the gap and 0 inside. Eq. 4.32 as
 printed (``k delta^2/2 - k b delta``) differs by the constant ``-k b^2/2`` and is discontinuous at ``+-b``,
@@ -99,34 +99,21 @@ class EnergyCriterion(AbstractCriterion):
         return Linearization(2.0 / 3.0 * (mean_stiffness + excess_potential), mean_force)
 
 
-CRITERIA = {c.name: c for c in (ForceCriterion, EnergyCriterion)}
-
-
-def as_criterion(criterion) -> AbstractCriterion:
-    """A criterion object from an object or its name (``"force"``, ``"energy"``)."""
-    if isinstance(criterion, AbstractCriterion):
-        if criterion.potential_reference not in (None, "mean"):
-            raise ValueError(
-                f"`criterion` {type(criterion).__name__}: potential_reference must be None (force-type) or "
-                f"'mean' (energy-type), got {criterion.potential_reference!r}"
-            )
-        return criterion
-    if isinstance(criterion, str) and criterion in CRITERIA:
-        return CRITERIA[criterion]()
-    if criterion == "energy_origin":
+def check_criterion(criterion) -> AbstractCriterion:
+    """``criterion`` itself, checked: an SL criterion object (names such as ``"force"`` are the CLI's, which
+    maps them to these objects)."""
+    if not isinstance(criterion, AbstractCriterion):
         raise ValueError(
-            "`criterion` 'energy_origin' (thesis Eq. 4.43 as printed, the potential measured about the origin) "
-            "was removed: under a static load it overestimates k_e by (mu - b)^2 / (3 sigma^2) and its fixed "
-            "point can settle on a spurious branch; use 'energy', which equals Eq. 4.43 wherever |mu| <= b "
-            "(docs/corrections.md, C1)"
+            "`criterion` must be an SL criterion object: pgtjax.ForceCriterion() (thesis Eqs. 3.37-3.42), "
+            "pgtjax.EnergyCriterion() (ch. 4, corrected) or a subclass of pgtjax.AbstractCriterion, "
+            f"got {criterion!r}"
         )
-    raise ValueError(
-        f"`criterion` must be one of {tuple(CRITERIA)} or a pgtjax criterion object, got {criterion!r}"
-    )
-
-
-def check_criterion(criterion) -> None:
-    as_criterion(criterion)
+    if criterion.potential_reference not in (None, "mean"):
+        raise ValueError(
+            f"`criterion` {type(criterion).__name__}: potential_reference must be None (force-type) or "
+            f"'mean' (energy-type), got {criterion.potential_reference!r}"
+        )
+    return criterion
 
 
 def _cdf(z):
@@ -300,12 +287,14 @@ class ContactLaw(eqx.Module):
         bb = jnp.broadcast_to(b, jnp.shape(mu))[None]
         return jnp.sum(w * fun(d, per_node, bb), axis=0)
 
-    def linearize(self, mu, sigma, inputs, b, criterion: str = "force") -> Linearization:
+    def linearize(
+        self, mu, sigma, inputs, b, criterion: AbstractCriterion = ForceCriterion()
+    ) -> Linearization:
         """Equivalent linear contact for ``delta ~ N(mu, sigma^2)`` (module docstring): ``f_0 = E[f]`` and
         ``k_e = E[f']`` (force criterion) or ``2/3 (E[f'] + (E[P] - P(mu)) / sigma^2)`` (energy), by quadrature;
         ``sigma = 0`` gives ``k_e = f'(mu)``. The energy form's ``E[P] - P(mu)`` is a difference: it keeps
         about ``eps (mu / sigma)^2`` relative accuracy, ample for SL's sigma but not for sigma -> 0."""
-        criterion = as_criterion(criterion)
+        criterion = check_criterion(criterion)
         f_0 = self.gaussian_expectation(self.force, mu, sigma, inputs, b)
         k_force = self.mean_stiffness(mu, sigma, inputs, b)
         if criterion.potential_reference is None:
@@ -384,8 +373,8 @@ class Backlash(ContactLaw):
     def potential(self, delta, k, b):
         return 0.5 * k * (jnp.maximum(delta - b, 0.0) ** 2 + jnp.maximum(-b - delta, 0.0) ** 2)
 
-    def linearize(self, mu, sigma, k, b, criterion: str = "force") -> Linearization:
-        criterion = as_criterion(criterion)
+    def linearize(self, mu, sigma, k, b, criterion: AbstractCriterion = ForceCriterion()) -> Linearization:
+        criterion = check_criterion(criterion)
         # distances into the upper and lower contact flanks, stacked so that each special function is
         # evaluated once for both flanks (fewer, larger operations)
         upper, lower, sigma = jnp.broadcast_arrays(mu - b, -b - mu, sigma)

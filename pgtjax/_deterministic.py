@@ -61,7 +61,7 @@ def simulate(
         v0,
         n_steps=n_steps,
         save_every=save_every,
-        integrator=resolve_integrator(integrator, None),
+        integrator=resolve_integrator(integrator),
     )
     if not throw:
         return result

@@ -42,10 +42,8 @@ import numpy as np
 
 from ._newmark import (
     AbstractIntegrator,
+    Newmark,
     Snapshot,
-    effective_stiffness,
-    from_displacement,
-    from_velocity,
     solve_contact_forces,
 )
 from ._system import System
@@ -91,20 +89,31 @@ class EigenPropagator(eqx.Module):
         return jnp.concatenate([u, (0.5 * self.h) * v], axis=1) @ self.basis_inverse.T
 
 
-def eigen_propagator(system: System, h: float) -> tuple[EigenPropagator | None, str]:
-    """The :class:`EigenPropagator` of ``system`` for step ``h`` (s), or ``(None, reason)`` where the
-    eigenbasis cannot be used (time-varying K or C, traced arrays, a defective or ill-conditioned basis)."""
+def eigen_propagator(
+    system: System, h: float, integrator: AbstractIntegrator | None = None
+) -> tuple[EigenPropagator | None, str]:
+    """The :class:`EigenPropagator` of ``system`` for step ``h`` (s) under ``integrator`` (default
+    :class:`~pgtjax.Newmark`), or ``(None, reason)`` where the eigenbasis cannot be used (time-varying K or
+    C, traced arrays, an integrator whose step matrices are not known, a defective or ill-conditioned basis)."""
+    integrator = Newmark() if integrator is None else integrator
     if callable(system.stiffness) or callable(system.damping):
         return None, "K or C depends on time"
     if any(isinstance(a, jax.core.Tracer) for a in (system.mass, system.damping, system.stiffness, h)):
         return None, "the system's matrices or the step are traced"
     h = float(h)
     M, C, K = (np.asarray(a, dtype=np.float64) for a in (system.mass, system.damping, system.stiffness))
+    matrices = integrator.constant_step_matrices(M, C, K, h)
+    if matrices is None:
+        return None, (
+            f"the integrator {type(integrator).__name__} does not give its contact-free step's matrices "
+            "(constant_step_matrices)"
+        )
+    k_eff, from_u, from_v = (np.asarray(a, dtype=np.float64) for a in matrices)
     n = M.shape[0]
     eye = np.eye(n)
-    a_inv = np.linalg.solve(effective_stiffness(M, C, K, h), eye)
-    x_u = a_inv @ from_displacement(M, C, K, h)
-    x_v = a_inv @ from_velocity(M, h)
+    a_inv = np.linalg.solve(k_eff, eye)
+    x_u = a_inv @ from_u
+    x_v = a_inv @ from_v
     t_map = np.block([[x_u, (2.0 / h) * x_v], [x_u - eye, (2.0 / h) * x_v - eye]])
     if not np.all(np.isfinite(t_map)):
         return None, "the step map is not finite"

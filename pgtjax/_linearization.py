@@ -42,7 +42,7 @@ import numpy as np
 from jax.ad_checkpoint import checkpoint_name
 from jax.custom_derivatives import SymbolicZero
 
-from ._contact import AbstractCriterion, Linearization, as_criterion
+from ._contact import AbstractCriterion, ForceCriterion, Linearization, check_criterion
 from ._failure import SolverError, error_if_nonfinite, is_concrete, raise_if_nonfinite
 from ._loop import saved_scan
 from ._newmark import (
@@ -99,7 +99,7 @@ class _EndTerms(NamedTuple):
     r_inv: jax.Array  # (nc, nc)
 
 
-def _linearizer(law, criterion: str, data: _StepData):
+def _linearizer(law, criterion: AbstractCriterion, data: _StepData):
     """``(mu, sigma) -> Linearization`` of the step-end contacts."""
     return lambda mu, sigma: law.linearize(mu, sigma, data.inputs, data.clearance, criterion)
 
@@ -118,7 +118,7 @@ def _inverse_jvp(primals, tangents):
     return a_inv, -a_inv @ da @ a_inv
 
 
-def _end_terms(law, nc: int, criterion: str, z, data: _StepData) -> _EndTerms:
+def _end_terms(law, nc: int, criterion: AbstractCriterion, z, data: _StepData) -> _EndTerms:
     lin = _linearizer(law, criterion, data)(z[:nc], z[nc:])
     r_inv = _inverse(jnp.eye(nc, dtype=z.dtype) + data.coupling * lin.k_e[None, :])
     return _EndTerms(lin, r_inv)
@@ -140,7 +140,7 @@ def _implied_moments(nc: int, z, terms: _EndTerms, data: _StepData) -> _Moments:
     return _Moments(mean, cov, safe_sqrt(jnp.diagonal(cov)))
 
 
-def _law_derivatives(law, criterion: str, z, data: _StepData, wrt):
+def _law_derivatives(law, criterion: AbstractCriterion, z, data: _StepData, wrt):
     """The law's derivatives (one :class:`Linearization` each) along unit tangents of the arguments named
     in ``wrt`` (of ``mu``, ``sigma``, ``inputs``, ``b``; ``inputs`` gives one per leaf of the law's inputs):
     contacts are linearized independently, so these are per contact."""
@@ -183,7 +183,7 @@ def _jacobian(nc: int, z, terms: _EndTerms, moments: _Moments, data: _StepData, 
     return jacobian - jnp.eye(2 * nc, dtype=z.dtype)
 
 
-def _evaluate(law, nc: int, criterion: str, z, data: _StepData, with_jacobian: bool = False):
+def _evaluate(law, nc: int, criterion: AbstractCriterion, z, data: _StepData, with_jacobian: bool = False):
     """The residual ``R(z) = T(z) - z`` of the fixed-point map T (the step-end contact moments implied by
     linearizing at ``z = (mu, sigma)``), the :class:`_EndTerms` at ``z`` and, optionally, ``dR/dz``
     (a (2 nc, 2 nc) matrix).
@@ -208,7 +208,9 @@ def _evaluate(law, nc: int, criterion: str, z, data: _StepData, with_jacobian: b
     return residual, terms, _residual_jacobian(law, nc, criterion, z, terms, data, moments)
 
 
-def _residual_jacobian(law, nc: int, criterion: str, z, terms: _EndTerms, data: _StepData, moments=None):
+def _residual_jacobian(
+    law, nc: int, criterion: AbstractCriterion, z, terms: _EndTerms, data: _StepData, moments=None
+):
     """``dR/dz`` (2 nc, 2 nc) at ``z`` whose end terms are known (the law's derivatives: one forward-mode
     pass batched over ``mu`` and ``sigma``), as in :func:`_evaluate`."""
     moments = _implied_moments(nc, z, terms, data) if moments is None else moments
@@ -290,7 +292,7 @@ def _stop_gradient(tree):
     return jax.tree.map(lambda x: jax.lax.stop_gradient(x) if eqx.is_array(x) else x, tree)
 
 
-def _law_parameter_tangent(law, criterion: str, z, data: _StepData, d_law) -> Linearization:
+def _law_parameter_tangent(law, criterion: AbstractCriterion, z, data: _StepData, d_law) -> Linearization:
     """Tangent of the law's ``(k_e, f_0)`` at fixed ``z`` and step data along a tangent ``d_law`` of the law's
     own parameters (its array fields, e.g. a mesh-stiffness table)."""
     nc = data.clearance.shape[0]
@@ -737,8 +739,7 @@ def solve_moments(
     initial_displacement=None,
     initial_velocity=None,
     initial_covariance=None,
-    criterion: str | AbstractCriterion = "force",
-    noise_scheme: str | None = None,
+    criterion: AbstractCriterion = ForceCriterion(),
     integrator: AbstractIntegrator | None = None,
     save_every: int = 1,
     rtol: float = 1e-10,
@@ -759,12 +760,11 @@ def solve_moments(
             of ``save_every``. Results are saved at ``t0 + k * save_every * dt``, ``k = 0..n_steps/save_every``.
         initial_displacement, initial_velocity: mean initial state (default 0).
         initial_covariance: (2n, 2n) covariance of ``(u, v)`` at ``t0`` (default 0: deterministic start).
-        criterion: the SL criterion, an object or its name: :class:`pgtjax.ForceCriterion` / ``"force"``
-            (Eqs. 3.37-3.42) or :class:`pgtjax.EnergyCriterion` / ``"energy"`` (ch. 4, corrected: equals
-            Eq. 4.43 where ``|mu| <= b``, and stays sensible under a static load).
+        criterion: the SL criterion, :class:`pgtjax.ForceCriterion` (default, Eqs. 3.37-3.42) or
+            :class:`pgtjax.EnergyCriterion` (ch. 4, corrected: equals Eq. 4.43 where ``|mu| <= b``, and stays
+            sensible under a static load), or a user's :class:`pgtjax.AbstractCriterion`.
         integrator: the time discretization, :class:`pgtjax.Newmark` (default: exact stationary covariance)
             or :class:`pgtjax.NewmarkBridge` (the documents' scheme).
-        noise_scheme: shorthand for ``integrator``: ``"trapezoidal"`` (Newmark) or ``"newmark"`` (NewmarkBridge).
         rtol: tolerance of the per-step fixed point, relative to ``|mu| + sigma + b`` of each contact.
         max_iter: Newton iterations allowed per step.
         throw: raise :class:`pgtjax.SolverError` naming the first time and quantity where a value is not
@@ -819,8 +819,8 @@ def solve_moments(
     check_memory("solve_moments", n_steps // save_every + 1, per_save, knob)
     check_contact_stiffness_over_time(system, t0, dt, n_steps)
     check_stability(system, t0, horizon=None if isinstance(dt, jax.core.Tracer) else n_steps * float(dt))
-    criterion = as_criterion(criterion)
-    integrator = resolve_integrator(integrator, noise_scheme)
+    criterion = check_criterion(criterion)
+    integrator = resolve_integrator(integrator)
     if isinstance(rtol, bool) or not isinstance(rtol, numbers.Real) or not 0.0 < rtol < 1.0:
         raise ValueError(f"`rtol` must be a number in (0, 1), got {rtol!r}")
     if isinstance(max_iter, bool) or not isinstance(max_iter, numbers.Integral) or max_iter < 1:

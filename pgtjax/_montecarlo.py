@@ -47,8 +47,6 @@ from ._failure import SolverError, raise_if_nonfinite
 from ._loop import saved_scan
 from ._newmark import (
     AbstractIntegrator,
-    Newmark,
-    NewmarkBridge,
     initial_sample_state,
     resolve_integrator,
     sample_step,
@@ -662,7 +660,6 @@ def monte_carlo(
     initial_velocity=None,
     initial_covariance=None,
     observables: Observables | None = None,
-    noise_scheme: str | None = None,
     integrator: AbstractIntegrator | None = None,
     save_every: int = 1,
     chunk_size: int | None = None,
@@ -683,7 +680,7 @@ def monte_carlo(
     """Monte Carlo statistics of the nonlinear system driven by sampled white noise.
 
     Args:
-        system, t0, dt, n_steps, save_every, integrator, noise_scheme, initial_*, observables: as in
+        system, t0, dt, n_steps, save_every, integrator, initial_*, observables: as in
             :func:`pgtjax.solve_moments`; with ``initial_covariance`` each sample starts from a Gaussian draw.
         n_samples: number of samples (>= 2).
         key: a ``jax.random`` key (e.g. ``jax.random.key(0)``).
@@ -736,7 +733,7 @@ def monte_carlo(
     check_observables(system, observables, t0)
     check_contact_stiffness_over_time(system, t0, dt, n_steps)
     check_stability(system, t0, horizon=n_steps * float(dt))
-    integrator = resolve_integrator(integrator, noise_scheme)
+    integrator = resolve_integrator(integrator)
     checkpoint = check_options(
         n_samples,
         chunk_size,
@@ -755,9 +752,7 @@ def monte_carlo(
             raise ValueError(f"`propagation` must be one of {PROPAGATIONS}, got {propagation!r}")
         eigen = None
         if propagation != "physical":
-            # the eigenbasis is that of the built-in average-acceleration map; another integrator's is not known
-            builtin = type(integrator) in (Newmark, NewmarkBridge)
-            eigen, reason = eigen_propagator(system, dt) if builtin else (None, "a custom integrator is used")
+            eigen, reason = eigen_propagator(system, dt, integrator)
             if eigen is None and propagation == "eigen":
                 raise ValueError(f"`propagation='eigen'` is not available for this system: {reason}")
         n = system.n_dof

@@ -18,11 +18,11 @@ gives the classic effective-stiffness form
     B_N = (2/sqrt(h)) B_s,   B_P = (4/sqrt(12 h)) B_s
     v1 = (2/h)(u1 - u0) - v0 - (2 sqrt(h)/sqrt(12)) M^-1 B_s P
 
-Noise schemes (``noise_scheme``):
-- ``"newmark"``: the documents' scheme, with the bridge term ``P``. For a linear system with state matrix A
+Integrators (the solvers' ``integrator`` argument):
+- :class:`NewmarkBridge`: the documents' scheme, with the bridge term ``P``. For a linear system with state matrix A
   and continuous stationary covariance P_c, its stationary covariance is ``P_c + h^2/12 A P_c A^T``: mode
   variances are inflated by ``1 + (omega h)^2/12`` (C2), which matters for stiff meshes.
-- ``"trapezoidal"`` (default): drops ``P``. Its stationary covariance equals ``P_c`` exactly for any ``h``.
+- :class:`Newmark` (default): drops ``P``. Its stationary covariance equals ``P_c`` exactly for any ``h``.
 
 Without noise this is the deterministic average-acceleration Newmark method (beta = 1/4, gamma = 1/2),
 second-order accurate and unconditionally stable.
@@ -64,7 +64,7 @@ class AbstractIntegrator(eqx.Module):
     The solvers take one with ``integrator=`` (default :class:`Newmark`). The solvers' state update assumes the
     average-acceleration kinematics ``v1 = (2/h)(u1 - u0) - v0`` (+ the velocity noise), so a subclass varies
     the effective-stiffness matrices and the noise treatment within that family; Monte Carlo's
-    eigen-coordinate path is used for the two built-in integrators only.
+    eigen-coordinate path is used where :meth:`constant_step_matrices` gives the step's matrices.
     """
 
     name: ClassVar[str]
@@ -85,6 +85,13 @@ class AbstractIntegrator(eqx.Module):
     @abc.abstractmethod
     def init(self, system: System, h) -> ConstantPropagator | None:
         """The run's step operators formed once (``None`` where K or C depends on time)."""
+
+    def constant_step_matrices(self, mass, damping, stiffness, h):
+        """``(K_eff, E, D)`` of the contact-free step for constant M, C, K (NumPy or JAX arrays, SI units),
+        where the step map follows from them alone, as the average-acceleration kinematics makes it: Monte
+        Carlo's eigen coordinates diagonalize that map. ``None`` (the default): not known, so Monte Carlo
+        steps this integrator in physical coordinates."""
+        return None
 
 
 class _AverageAcceleration(AbstractIntegrator):
@@ -119,6 +126,14 @@ class _AverageAcceleration(AbstractIntegrator):
         return all(
             getattr(cls, m) is getattr(base, m) for m in ("effective_matrices", "step_matrices", "init")
         )
+
+    def constant_step_matrices(self, mass, damping, stiffness, h):
+        """``effective_matrices`` at constant K, unless a subclass forms its steps some other way (it
+        overrides ``step_matrices`` or ``init``): then ``None``, since these matrices would not be its map."""
+        cls, base = type(self), _AverageAcceleration
+        if cls.step_matrices is not base.step_matrices or cls.init is not base.init:
+            return None
+        return self.effective_matrices(mass, damping, stiffness, stiffness, h)
 
     def step_matrices(self, system: System, s0: Snapshot, s1: Snapshot, h) -> StepMatrices:
         c_mid = 0.5 * (s0.damping + s1.damping)
@@ -181,26 +196,16 @@ class NewmarkBridge(_AverageAcceleration):
         return jnp.concatenate([b_n, b_p], axis=1), v_noise
 
 
-NOISE_SCHEMES = {"trapezoidal": Newmark, "newmark": NewmarkBridge}
-
-
-def resolve_integrator(integrator: AbstractIntegrator | None, noise_scheme: str | None) -> AbstractIntegrator:
-    """The integrator a solver uses: ``integrator`` if given, else the one named by the ``noise_scheme``
-    shorthand (``"trapezoidal"``: :class:`Newmark`, the default; ``"newmark"``: :class:`NewmarkBridge`)."""
-    if integrator is not None:
-        if not isinstance(integrator, AbstractIntegrator):
-            raise ValueError(
-                f"`integrator` must be a pgtjax integrator (e.g. pgtjax.Newmark()), got {integrator!r}"
-            )
-        if noise_scheme is not None and noise_scheme != integrator.name:
-            raise ValueError(
-                f"`noise_scheme={noise_scheme!r}` contradicts `integrator={integrator!r}`: give one"
-            )
-        return integrator
-    noise_scheme = "trapezoidal" if noise_scheme is None else noise_scheme
-    if noise_scheme not in NOISE_SCHEMES:
-        raise ValueError(f"`noise_scheme` must be one of {tuple(NOISE_SCHEMES)}, got {noise_scheme!r}")
-    return NOISE_SCHEMES[noise_scheme]()
+def resolve_integrator(integrator: AbstractIntegrator | None) -> AbstractIntegrator:
+    """The integrator a solver uses: ``integrator``, or :class:`Newmark` where it is None."""
+    if integrator is None:
+        return Newmark()
+    if not isinstance(integrator, AbstractIntegrator):
+        raise ValueError(
+            "`integrator` must be a pgtjax integrator object, pgtjax.Newmark() (the default) or "
+            f"pgtjax.NewmarkBridge() (the documents' scheme), got {integrator!r}"
+        )
+    return integrator
 
 
 class Snapshot(NamedTuple):

@@ -49,6 +49,7 @@ def run_up(params):
 # ------------------------------------------------------------------------------------- regimes
 
 
+@pytest.mark.slow
 def test_stationary_response_repeats_at_the_mesh_period(stationary):
     n = STEPS_PER_MESH_PERIOD
     d = np.asarray(stationary.trajectory.delta)
@@ -66,6 +67,7 @@ def test_stationary_response_repeats_at_the_mesh_period(stationary):
     assert int(stationary.trajectory.unconverged) == 0
 
 
+@pytest.mark.slow
 def test_ring_acceleration_keeps_only_multiples_of_three_mesh_harmonics(stationary):
     """Three equally spaced planets with Z_r/3, Z_s/3 not integer: harmonics 1, 2 cancel in the ring
     torque."""
@@ -189,6 +191,7 @@ def test_mesh_matrix_is_the_papers_eq19_for_standard_teeth(params):
         assert np.allclose(km[:6, 6:], 0.0)
 
 
+@pytest.mark.slow
 def test_contact_law_matches_the_mesh_stiffness_module(params):
     law = bb.hertzian_mesh_law(params)
     b = jnp.zeros(12)
@@ -221,7 +224,7 @@ def test_gauss_hermite_linearization_limits(params):
     lin0 = law.linearize(mu, jnp.zeros(12), ph, b)
     assert np.allclose(lin0.f_0, law.force(mu, ph, b), rtol=1e-12)
     assert np.allclose(lin0.k_e, law.stiffness(mu, ph, b), rtol=1e-12)
-    for crit in ("force", "energy"):
+    for crit in (pg.ForceCriterion(), pg.EnergyCriterion()):
         lin = law.linearize(mu, jnp.full(12, 1e-7), ph, b, criterion=crit)
         assert np.allclose(lin.k_e, lin0.k_e, rtol=1e-3)
     m, sd = law.force_moments(mu, jnp.full(12, 1e-7), ph, b)
@@ -382,6 +385,7 @@ def test_stft_window_is_checked_before_any_simulation(monkeypatch, params):
     assert study.check_stft_window(0.02, dt=1e-4, save_every=1, t_end=0.4, stationary_t_end=0.05) == 0.02
 
 
+@pytest.mark.slow
 def test_cli_run_writes_readme_and_a_summary_with_units(tmp_path, capsys):
     from pgtjax._summary import missing_units
 

@@ -82,6 +82,7 @@ def test_digest_of_a_recursive_closure_or_a_cyclic_object_terminates():
     assert tree_digest(_closure([1.0, [2.0]])) != tree_digest(_closure([1.0, [3.0]]))
 
 
+@pytest.mark.slow
 def test_digest_is_the_same_in_another_process():
     """A resumed run is a new process, with another string hash seed, which orders sets and frozensets: in
     a function's constants or in what it carries."""

@@ -34,6 +34,7 @@ def test_out_inside_a_read_only_folder_is_refused(tmp_path, capsys):
         locked.chmod(0o700)
 
 
+@pytest.mark.slow
 def test_parameters_toml_reproduces_the_run_and_set_overrides_name_their_key(tmp_path, monkeypatch, capsys):
     """A run with --set writes parameters.toml (every entry, the override applied); a second run from that file
     alone gives the same summary.json and results (tiny sizes, Monte Carlo and sweeps included); every number
@@ -88,6 +89,7 @@ print(repr(float(jnp.sum(y))), sum(hits))
 """
 
 
+@pytest.mark.slow
 def test_compilation_cache_gives_the_next_process_the_compiled_programs(tmp_path):
     """``pg.use_compilation_cache``: a program compiled in well under JAX's default threshold of a second is
     kept (the folder gains its entry), and a second process loads it (JAX's cache-hit event) and computes the

@@ -66,6 +66,7 @@ def _law_case(name):
 CASES = [*LAWS, "hertzian_mesh"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", CASES)
 def test_contract_force_is_the_potential_derivative_and_stiffness_the_force_derivative(name):
     law, inputs, b, scale = _law_case(name)
@@ -83,14 +84,15 @@ def test_contract_force_is_the_potential_derivative_and_stiffness_the_force_deri
     assert closed.shape == (2,) and bool(jnp.all(closed > 0.0))
 
 
-@pytest.mark.parametrize("criterion", ["force", "energy"])
+@pytest.mark.slow
+@pytest.mark.parametrize("criterion", [pg.ForceCriterion(), pg.EnergyCriterion()], ids=["force", "energy"])
 @pytest.mark.parametrize("name", CASES)
 def test_contract_small_std_limit_is_the_deterministic_law(name, criterion):
     law, inputs, b, scale = _law_case(name)
     mu = jnp.array([2.3, -3.4]) * scale
     # The quadrature default forms the energy criterion's (E[P] - P(mu)) / sigma^2 as a difference, which
     # loses eps (mu / sigma)^2 relative: probe it at sigma = 1e-3 (offset O(sigma^2) ~ 1e-7 from f'(mu)).
-    small = 1e-3 if criterion == "energy" and name != "backlash" else 1e-6
+    small = 1e-3 if criterion.name == "energy" and name != "backlash" else 1e-6
     lin = law.linearize(mu, jnp.full(2, small * scale), inputs, b, criterion)
     np.testing.assert_allclose(lin.f_0, law.force(mu, inputs, b), rtol=1e-6)
     np.testing.assert_allclose(lin.k_e, law.stiffness(mu, inputs, b), rtol=1e-5)
@@ -99,6 +101,7 @@ def test_contract_small_std_limit_is_the_deterministic_law(name, criterion):
     np.testing.assert_allclose(std, 1e-6 * scale * jnp.abs(law.stiffness(mu, inputs, b)), rtol=1e-3)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("regime", ["permanent_contact", "kink_in_the_bulk"])
 @pytest.mark.parametrize("name", CASES)
 def test_contract_gaussian_statistics_match_adaptive_quadrature(name, regime):
@@ -109,8 +112,8 @@ def test_contract_gaussian_statistics_match_adaptive_quadrature(name, regime):
         mu, sigma = jnp.array([6.0, -7.5]) * scale, jnp.array([0.6, 0.8]) * scale
     else:
         mu, sigma = jnp.array([0.4, -1.2]) * scale, jnp.array([1.5, 0.8]) * scale
-    lin_f = law.linearize(mu, sigma, inputs, b, "force")
-    lin_e = law.linearize(mu, sigma, inputs, b, "energy")
+    lin_f = law.linearize(mu, sigma, inputs, b, pg.ForceCriterion())
+    lin_e = law.linearize(mu, sigma, inputs, b, pg.EnergyCriterion())
     mean, std = law.force_moments(mu, sigma, inputs, b)
     for j in range(2):
         # compiled once per law function: quadrature evaluates it thousands of times, op by op otherwise
@@ -165,7 +168,8 @@ def test_contract_single_contact_solve_residual(name):
         np.testing.assert_allclose(residual, 0.0, atol=1e-10 * float(jnp.max(jnp.abs(delta_lin))))
 
 
-@pytest.mark.parametrize("criterion", ["force", "energy"])
+@pytest.mark.slow
+@pytest.mark.parametrize("criterion", [pg.ForceCriterion(), pg.EnergyCriterion()], ids=["force", "energy"])
 @pytest.mark.parametrize("name", CASES)
 def test_contract_linearization_gradients_match_central_differences(name, criterion):
     """d(k_e, f_0) with respect to mu, sigma, the inputs and the law's own array parameters."""
@@ -232,6 +236,7 @@ def _exact_stationary_moments(k3=K3, load=F0):
     return m1 / z, np.sqrt(m2 / z - (m1 / z) ** 2)
 
 
+@pytest.mark.slow
 def test_new_law_plugs_into_monte_carlo_and_moments_against_the_exact_density():
     system = _duffing_system(load=1.0)
     mean_exact, std_exact = _exact_stationary_moments(load=1.0)
@@ -244,7 +249,7 @@ def test_new_law_plugs_into_monte_carlo_and_moments_against_the_exact_density():
     assert abs(mc_mean - mean_exact) < 4 * se
     assert abs(mc_std - std_exact) < 4 * se
     # SL (Gauss-Hermite default of the base class): the energy criterion is close for a Duffing spring
-    sl = pg.solve_moments(system, criterion="energy", **kw)
+    sl = pg.solve_moments(system, criterion=pg.EnergyCriterion(), **kw)
     assert abs(float(sl.mean_u[-1, 0]) - mean_exact) < 0.05 * std_exact
     assert abs(float(sl.std_u[-1, 0]) / std_exact - 1.0) < 0.05
 
@@ -271,6 +276,7 @@ def test_new_law_plugs_into_modal_and_deterministic_solvers():
     np.testing.assert_allclose(float(K_MESH * u[0] + K3 * u[0] ** 3), 2.0, rtol=1e-12)
 
 
+@pytest.mark.slow
 def test_gradient_through_solve_moments_wrt_a_law_array_parameter_matches_central_differences():
     """Reverse mode through SL + the recursion with respect to the law's own field ``k3`` (this used to leak a
     tracer: the law was a non-differentiable argument of the fixed point's custom JVP), and through the
@@ -280,7 +286,12 @@ def test_gradient_through_solve_moments_wrt_a_law_array_parameter_matches_centra
         system = _duffing_system(k3=k3, load=1.0)
         u0 = pg.static_equilibrium(system)
         sl = pg.solve_moments(
-            system, dt=0.005, n_steps=200, save_every=50, criterion="force", initial_displacement=u0
+            system,
+            dt=0.005,
+            n_steps=200,
+            save_every=50,
+            criterion=pg.ForceCriterion(),
+            initial_displacement=u0,
         )
         return sl.std_u[-1, 0] + 3.0 * sl.mean_u[-1, 0]
 
@@ -327,6 +338,7 @@ def test_gradient_of_static_equilibrium_matches_central_differences():
         pg.static_equilibrium(free)
 
 
+@pytest.mark.slow
 def test_bench_modes_are_those_of_its_mean_mesh_stiffness():
     """The bench's Hertzian law takes the mesh phase as its input; modal analysis uses the law's closed
     stiffness (the mean tangent mesh stiffness), not the phase (which once gave modes near 0.1 Hz)."""
@@ -346,6 +358,7 @@ class ScaledCubic(CubicHardening):
         return self.gain * super().force(delta, k, b)
 
 
+@pytest.mark.slow
 def test_law_with_a_clearance_converges_in_sl_and_non_array_fields_do_not_break_gradients():
     """The default E[f'] (Stein's form E[(x - mu) f] / sigma^2) is continuous across the flank edge, so SL's
     Newton converges for a law with a clearance (quadrature of the jumping f' made it stall)."""
@@ -362,7 +375,7 @@ def test_law_with_a_clearance_converges_in_sl_and_non_array_fields_do_not_break_
             spectral_density=S0,
             contacts=contacts,
         )
-        sl = pg.solve_moments(system, dt=0.01, n_steps=40, save_every=20, criterion="force")
+        sl = pg.solve_moments(system, dt=0.01, n_steps=40, save_every=20, criterion=pg.ForceCriterion())
         assert bool(jnp.all(sl.converged)) if not isinstance(sl.converged, jax.core.Tracer) else True
         return sl.std_u[-1, 0]
 
@@ -391,6 +404,7 @@ def test_static_equilibrium_gradient_through_a_closed_over_time_function():
     np.testing.assert_allclose(float(jax.grad(objective)(p)), float(fd), rtol=1e-6)
 
 
+@pytest.mark.slow
 def test_custom_integrator_and_criterion_are_honoured():
     class DampedNewmark(pg.Newmark):  # a user's variant: twice the damping in the step's algebra
         name = "damped"
@@ -403,10 +417,22 @@ def test_custom_integrator_and_criterion_are_honoured():
     builtin = pg.monte_carlo(system, **kw)
     assert builtin.propagation == "eigen"
     mc = pg.monte_carlo(system, integrator=DampedNewmark(), **kw)
-    assert mc.propagation == "physical"  # the eigenbasis is the built-in map's, not this one's
+    # the variant's own step matrices are diagonalized: eigen coordinates, the physical step's numbers
+    assert mc.propagation == "eigen"
+    physical = pg.monte_carlo(system, integrator=DampedNewmark(), propagation="physical", **kw)
+    np.testing.assert_allclose(mc.std_v, physical.std_v, rtol=1e-10)
+    np.testing.assert_allclose(mc.mean_u, physical.mean_u, rtol=1e-10, atol=1e-14)
     assert float(mc.std_v[-1, 0]) < 0.99 * float(builtin.std_v[-1, 0])  # same draws, more damping
-    with pytest.raises(ValueError, match="custom integrator"):
-        pg.monte_carlo(system, integrator=DampedNewmark(), propagation="eigen", **kw)
+
+    class ScaledStepNewmark(pg.Newmark):  # forms its steps itself: its map is not (K_eff, E, D)'s
+        name = "scaled_step"
+
+        def step_matrices(self, system, s0, s1, h):
+            m = super().step_matrices(system, s0, s1, h)
+            return m._replace(effective_stiffness=1.5 * m.effective_stiffness)
+
+    with pytest.raises(ValueError, match="ScaledStepNewmark does not give its contact-free step"):
+        pg.monte_carlo(system, integrator=ScaledStepNewmark(), propagation="eigen", **kw)
 
     class HalfEnergy(pg.EnergyCriterion):  # a new criterion chooses its formula by its potential reference
         name = "half_energy"
@@ -416,8 +442,8 @@ def test_custom_integrator_and_criterion_are_honoured():
 
     law, inputs, b, scale = LAWS["backlash"]
     mu, sigma = jnp.array([0.4, -1.2]) * scale, jnp.array([1.5, 0.8]) * scale
-    energy = law.linearize(mu, sigma, inputs, b, "energy")
+    energy = law.linearize(mu, sigma, inputs, b, pg.EnergyCriterion())
     half = law.linearize(mu, sigma, inputs, b, HalfEnergy())
-    force = law.linearize(mu, sigma, inputs, b, "force")
+    force = law.linearize(mu, sigma, inputs, b, pg.ForceCriterion())
     # k_e = 2/3 (E f' + X) and 2/3 (E f' + X / 2): their difference is X / 3 = (energy - 2/3 force) / 2
     np.testing.assert_allclose(energy.k_e - half.k_e, 0.5 * (energy.k_e - 2.0 / 3.0 * force.k_e), rtol=1e-12)

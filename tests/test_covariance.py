@@ -62,6 +62,7 @@ def test_transient_cross_covariance_is_half_the_derivative_of_the_variance():
     np.testing.assert_allclose(slope, 2 * cross[1:-1], rtol=0, atol=2e-3 * 2 * scale)
 
 
+@pytest.mark.slow
 def test_monte_carlo_covariance_agrees_with_sl_within_standard_errors():
     system = oscillator()
     var_x, var_v = math.pi * S0 / (K * C), math.pi * S0 / (M * C)

@@ -50,6 +50,7 @@ def test_crossing_rate_equals_the_integral_of_the_joint_density():
     assert got.dtype == np.float64
 
 
+@pytest.mark.slow
 def test_sl_peaks_of_an_oscillator_match_monte_carlo_in_the_tail_and_bound_it():
     """An oscillator started at rest: SL's moments are exact for a linear system, and the peaks are taken
     from 1 s on (about 6 decay times, stationary by then). Stationary, the expected crossings grow at the
@@ -90,6 +91,7 @@ def test_sl_peaks_of_an_oscillator_match_monte_carlo_in_the_tail_and_bound_it():
     assert 0.05 < float(rice.probability[-1, 3]) < 0.2  # the tail tested is neither empty nor certain
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("start", [None, 0.3])
 def test_sl_peak_probability_has_the_gradient_of_a_central_difference_and_runs_jitted(start):
     """d P(peak >= a) / d log k through the SL recursion and Rice's rate, against a central difference, with
@@ -217,6 +219,7 @@ def test_step_crossing_probability_equals_the_closed_form_with_owens_t():
                                    atol=1e-300)  # fmt: skip
 
 
+@pytest.mark.slow
 def test_step_crossings_of_known_steps_and_barriers_at_infinity():
     """step_crossings' limits in closed form: a barrier that comes down from infinity (a contact gaining
     stiffness) is crossed with the probability of being beyond it after the step, one that goes to infinity is
@@ -282,6 +285,7 @@ def moving_observables(n: int) -> pg.Observables:
     return pg.Observables(matrix, names=["p", "q"], offset=[0.01, -0.02])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("which", ["turning pair", "chain", "chain, varying K"])
 def test_deflection_lag_is_the_covariance_with_the_step_before(which):
     """cov_delta_lag, cov_u_lag and cov_obs_lag from solve_moments(deflection_lag=True) against
@@ -335,6 +339,7 @@ def test_deflection_lag_is_the_covariance_with_the_step_before(which):
     assert every_nth_save(sl, 1).cov_delta_lag is not None and every_nth_save(sl, 1).cov_u_lag is not None
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("dt", [1e-3, 0.05])
 def test_sl_contact_peaks_under_a_varying_mesh_stiffness_match_monte_carlo(dt):
     """Peaks of the deflection and of the force k(t) delta of a contact whose stiffness varies by +-40 % at
@@ -395,6 +400,7 @@ def test_sl_contact_peaks_under_a_varying_mesh_stiffness_match_monte_carlo(dt):
         assert np.all(rice[tail] > 5 * p_delta[tail]), (rice, p_delta)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("path", ["constant map", "Woodbury", "dense"])
 def test_displacement_and_observable_peaks_between_steps_have_the_gradient_of_a_central_difference(path):
     """d P(peak >= a) / d log s, s scaling the chain's stiffness and an observable's moving rows, counted
@@ -443,6 +449,7 @@ def test_displacement_and_observable_peaks_between_steps_have_the_gradient_of_a_
     np.testing.assert_allclose(float(grad), fd[0] + 3.7 * fd[1], rtol=1e-5)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("initially", ["at rest", "spread"])
 @pytest.mark.parametrize("method", ["steps", "rice"])
 def test_lower_bound_is_the_largest_exceedance_at_one_time_since_the_start(method, initially):
@@ -492,6 +499,7 @@ def test_lower_bound_is_the_largest_exceedance_at_one_time_since_the_start(metho
     np.testing.assert_allclose(float(jax.jit(jax.grad(lower))(0.0)), fd, rtol=1e-5)
 
 
+@pytest.mark.slow
 def test_lower_bound_of_a_force_follows_its_moving_barrier():
     """A contact force's ``lower_bound`` at a level F: P(|delta| >= F / k(t)) with the mesh stiffness k(t) at
     each saved time, against SciPy from SL's deflection moments; a level of 0 N is reached at once (1 from the
@@ -523,6 +531,7 @@ def _scaled(stiffness, factor):
     return factor * jnp.asarray(stiffness)
 
 
+@pytest.mark.slow
 def test_sl_contact_peaks_refuse_what_they_cannot_estimate():
     system = mesh_oscillator(clearance=0.01, load=50.0)
     solve = dict(dt=1e-3, n_steps=20, deflection_lag=True, observables=pg.Observables([[2.0]], names=["y"]))

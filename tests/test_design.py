@@ -66,6 +66,7 @@ def chain_problem(
     return pd.DesignProblem(space, response, pd.Variance(["q0", "q1"]), [cost], normalize=False)
 
 
+@pytest.mark.slow
 def test_two_dof_optimum_matches_the_hand_derived_one():
     lam = 0.01
     result = pd.optimize(chain_problem(lam), rtol=0.0, gtol=1e-10, max_iter=60, progress=False)
@@ -78,6 +79,7 @@ def test_two_dof_optimum_matches_the_hand_derived_one():
     assert result.z.dtype == np.float64
 
 
+@pytest.mark.slow
 def test_sl_peak_probability_as_a_design_objective_has_the_gradient_of_a_central_difference():
     """``Response(covariance_dofs=...)`` keeps the joint covariance SL's peak estimate reads, so a ``Custom``
     objective on ``result.peak_exceedance`` (the probability that q1's peak from 2 s on has reached 0.5 m by
@@ -123,6 +125,7 @@ def mesh_system(p):
                      contacts=pg.Contacts([[1.0]], k, [0.0], names=["mesh"]))  # fmt: skip
 
 
+@pytest.mark.slow
 def test_sl_force_peak_probability_as_a_design_objective_has_the_gradient_of_a_central_difference():
     """``Response(deflection_lag=True)`` keeps what SL's peak estimate of a contact force reads, so a
     ``Custom`` objective on ``result.peak_exceedance("force:mesh", ..., system=system)`` (the probability that
@@ -149,6 +152,7 @@ def test_sl_force_peak_probability_as_a_design_objective_has_the_gradient_of_a_c
         pd.Response(build=mesh_system, dt=1e-3, n_steps=600, save_every=2, deflection_lag=True)
 
 
+@pytest.mark.slow
 def test_grouped_checkpoints_leave_the_objective_and_its_gradient_unchanged():
     """``Response(checkpoint_blocks=k)`` reaches ``solve_moments``: the same value and gradient (the state kept
     once per 3 saved blocks, 20 blocks: a group left incomplete), and a bad k is refused when the problem is built."""
@@ -163,6 +167,7 @@ def test_grouped_checkpoints_leave_the_objective_and_its_gradient_unchanged():
             pd.Response(build=chain_system, dt=0.05, n_steps=20, checkpoint_blocks=k)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("transform", ["log", "linear", "box"])
 def test_bounds_are_never_violated(transform):
     # a tiny cost pushes both stiffnesses up; the upper bound stops them
@@ -210,6 +215,7 @@ def test_gradient_at_a_bound_points_inside():
     np.testing.assert_allclose(grad, expected, rtol=1e-8)
 
 
+@pytest.mark.slow
 def test_resume_continues_the_same_history(tmp_path, capsys):
     straight = pd.optimize(
         chain_problem(0.01), max_iter=6, rtol=0.0, gtol=0.0, progress=False, history=tmp_path / "a.json"
@@ -240,6 +246,7 @@ def test_resume_continues_the_same_history(tmp_path, capsys):
         pd.optimize(chain_problem(0.02), max_iter=6, history=path, resume=True, progress=False)
 
 
+@pytest.mark.slow
 def test_batch_evaluation_equals_one_by_one():
     problem = chain_problem(0.01)
     zs = jnp.array([[0.0, 0.0], [0.5, -0.3], [-1.0, 1.2]])
@@ -269,6 +276,7 @@ def test_vmapped_batches_equal_one_by_one_and_warn_on_an_affected_jaxlib():
     np.testing.assert_allclose(batched.value, pd.evaluate(problem, zs).value, rtol=1e-13)
 
 
+@pytest.mark.slow
 def test_monte_carlo_check_agrees_with_the_exact_variance():
     problem = chain_problem(0.01, n_steps=40)
     z_opt = jnp.log(jnp.array([np.sqrt(C / 0.01), np.sqrt(C / 0.02)]))  # Log map reference 1
@@ -363,6 +371,7 @@ OBJECTIVES = [
 COSTS = [pd.SupportStiffness(), pd.RimMass()]
 
 
+@pytest.mark.slow
 def test_every_objective_and_cost_gradient_matches_central_differences():
     # one simulation, every built-in objective and cost of it, and one compiled program for the values and
     # their reverse-mode Jacobian (the differences below call the same program: compilation dominates this test).

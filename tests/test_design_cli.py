@@ -35,6 +35,7 @@ def write_spec(path, data):
     return path
 
 
+@pytest.mark.slow
 def test_optimize_writes_its_outputs_and_resumes(tmp_path, capsys, monkeypatch):
     spec = write_spec(tmp_path / "design.toml", tiny_spec())
     params = embedded.read_toml(embedded.path("planetary.toml"))
@@ -89,6 +90,7 @@ def test_optimize_writes_its_outputs_and_resumes(tmp_path, capsys, monkeypatch):
     )
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "change, message",
     [

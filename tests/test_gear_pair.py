@@ -66,6 +66,7 @@ def small_study():
     return study.run_study(P, regimes=regimes, n_samples=3000, key=jax.random.key(7), **SMALL)
 
 
+@pytest.mark.slow
 def test_heavy_load_sl_agrees_with_mc(small_study):
     heavy = small_study.regimes[0]
     rows = [r for r in study.error_table(small_study) if r["regime"] == "heavy"]
@@ -76,6 +77,7 @@ def test_heavy_load_sl_agrees_with_mc(small_study):
     assert ks["ks"] < ks["critical_5pct"], ks
 
 
+@pytest.mark.slow
 def test_light_load_loses_contact_and_mc_pdf_is_not_gaussian(small_study):
     light = small_study.regimes[1]
     assert float(light.mc.contact_loss_probability[-1, 0]) > 0.5
@@ -124,6 +126,7 @@ def test_cli_entry_points(monkeypatch, capsys):
     assert [e.value for e in scripts] == ["pgtjax.cli:main"] and scripts[0].load() is cli.main
 
 
+@pytest.mark.slow
 def test_cli_writes_readme_listing_every_file(tmp_path, capsys):
     out = tmp_path / "gp"
     argv = ["gear-pair", "--samples", "20", "--t-end", "0.002", "--saves", "4", "--quiet", "--out", str(out)]

@@ -8,6 +8,9 @@ from scipy import linalg
 
 import pgtjax as pg
 
+# the two built-in integrators, by the names the tests are parametrized with
+INTEGRATORS = {"trapezoidal": pg.Newmark, "newmark": pg.NewmarkBridge}
+
 M = np.diag([1.0, 2.0])
 K = np.array([[300.0, -100.0], [-100.0, 200.0]])
 C = np.array([[4.0, -1.0], [-1.0, 3.0]])
@@ -47,21 +50,28 @@ def state_matrix():
     return a, q
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("scheme", ["trapezoidal", "newmark"])
 def test_stationary_covariance_equals_discrete_lyapunov(scheme):
     h = 0.01
     t1, t3 = thesis_step_matrices(h, scheme)
     p_disc = linalg.solve_discrete_lyapunov(t1, t3 @ t3.T)
-    res = pg.solve_moments(linear_system(), dt=h, n_steps=4000, save_every=4000, noise_scheme=scheme)
+    res = pg.solve_moments(
+        linear_system(), dt=h, n_steps=4000, save_every=4000, integrator=INTEGRATORS[scheme]()
+    )
     std = np.concatenate([res.std_u[-1], res.std_v[-1]])
     np.testing.assert_allclose(std, np.sqrt(np.diag(p_disc)), rtol=1e-8)
     # Starting *at* the discrete solution, one step must return it exactly (full matrix, not only std).
-    res1 = pg.solve_moments(linear_system(), dt=h, n_steps=1, noise_scheme=scheme, initial_covariance=p_disc)
+    res1 = pg.solve_moments(
+        linear_system(), dt=h, n_steps=1, integrator=INTEGRATORS[scheme](), initial_covariance=p_disc
+    )
     std1 = np.concatenate([res1.std_u[-1], res1.std_v[-1]])
     np.testing.assert_allclose(std1, np.sqrt(np.diag(p_disc)), rtol=1e-12)
     # and the mean follows T1 exactly (thesis Eq. 3.52 with the load term)
     u0 = np.array([1e-3, -2e-3])
-    res2 = pg.solve_moments(linear_system(), dt=h, n_steps=1, noise_scheme=scheme, initial_displacement=u0)
+    res2 = pg.solve_moments(
+        linear_system(), dt=h, n_steps=1, integrator=INTEGRATORS[scheme](), initial_displacement=u0
+    )
     n1 = np.block([[C + h / 2 * K, M], [M, -h / 2 * M]])
     f = np.array([1.0, -2.0])
     mean_thesis = t1 @ np.concatenate([u0, np.zeros(2)]) + np.linalg.solve(
@@ -109,6 +119,7 @@ def slow_and_fast_system(n: int, time_varying: bool = False):
     ), (mass, damping, stiffness)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("n, time_varying", [(2, False), (20, False), (20, True)])
 def test_slow_dofs_keep_their_stationary_covariance(n, time_varying):
     """The trapezoidal scheme keeps the continuous stationary covariance exactly, for any step. Started
@@ -140,6 +151,7 @@ class StiffNewmark(pg.Newmark):
         return super().effective_matrices(mass, damping, 1.5 * stiffness0, 1.5 * stiffness1, h)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("n, time_varying", [(2, False), (20, False), (20, True)])
 def test_a_variant_of_the_effective_matrices_keeps_its_own_stationary_covariance(n, time_varying):
     """SL with an integrator that overrides ``effective_matrices`` propagates that variant's map, not the
@@ -166,6 +178,7 @@ def test_a_variant_of_the_effective_matrices_keeps_its_own_stationary_covariance
         np.testing.assert_allclose(np.concatenate([res.std_u[i], res.std_v[i]]), want, rtol=1e-8)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("scheme", ["trapezoidal", "newmark"])
 def test_recursion_converges_to_continuous_lyapunov(scheme):
     a, q = state_matrix()
@@ -174,7 +187,9 @@ def test_recursion_converges_to_continuous_lyapunov(scheme):
     errs, steps = [], [0.02, 0.01, 0.005]
     for h in steps:
         n = int(round(40.0 / h))
-        res = pg.solve_moments(linear_system(), dt=h, n_steps=n, save_every=n, noise_scheme=scheme)
+        res = pg.solve_moments(
+            linear_system(), dt=h, n_steps=n, save_every=n, integrator=INTEGRATORS[scheme]()
+        )
         std = np.concatenate([res.std_u[-1], res.std_v[-1]])
         errs.append(np.max(np.abs(std - std_c) / std_c))
     if scheme == "trapezoidal":
@@ -193,6 +208,7 @@ def test_mean_equals_deterministic_response():
     assert res.mean_u.dtype == jnp.float64 and res.std_u.dtype == jnp.float64
 
 
+@pytest.mark.slow
 def test_linear_contact_with_zero_clearance_is_exactly_linear():
     """A b = 0 contact linearizes exactly (k_e = k, f_0 = k mu): same moments as putting k in K."""
     g = np.array([[1.0], [-1.0]])
@@ -214,7 +230,7 @@ def test_linear_contact_with_zero_clearance_is_exactly_linear():
         spectral_density=S0,
         load=np.array([1.0, -2.0]),
     )
-    for crit in ("force", "energy"):
+    for crit in (pg.ForceCriterion(), pg.EnergyCriterion()):
         r1 = pg.solve_moments(with_contact, dt=0.01, n_steps=300, save_every=30, criterion=crit)
         r2 = pg.solve_moments(merged, dt=0.01, n_steps=300, save_every=30)
         np.testing.assert_allclose(r1.mean_u, r2.mean_u, rtol=1e-10, atol=1e-15)
@@ -224,6 +240,7 @@ def test_linear_contact_with_zero_clearance_is_exactly_linear():
         )
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("stiffness_form", ["constant", "function"])
 def test_large_system_path_equals_discrete_lyapunov_of_thesis_matrices(stiffness_form):
     """n = 18 > 16: with a constant K the step uses the once-formed contact-free map plus rank-nc contact
@@ -247,7 +264,7 @@ def test_large_system_path_equals_discrete_lyapunov_of_thesis_matrices(stiffness
         spectral_density=0.1,
         contacts=pg.Contacts(direction=g, stiffness=[kc], clearance=[0.0]),
     )
-    res = pg.solve_moments(system, dt=h, n_steps=3000, save_every=3000, noise_scheme="newmark")
+    res = pg.solve_moments(system, dt=h, n_steps=3000, save_every=3000, integrator=pg.NewmarkBridge())
     k_all = k + kc * g @ g.T
     bs = b * np.sqrt(2 * np.pi * 0.1)
     n1 = np.block([[c + h / 2 * k_all, m], [m, -h / 2 * m]])
@@ -293,13 +310,18 @@ def backlash_chain(stiffness_form):
     )
 
 
-@pytest.mark.parametrize("scheme, criterion", [("trapezoidal", "energy"), ("newmark", "force")])
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    "scheme, criterion",
+    [("trapezoidal", pg.EnergyCriterion()), ("newmark", pg.ForceCriterion())],
+    ids=["trapezoidal-energy", "newmark-force"],
+)
 def test_constant_stiffness_path_equals_general_path_with_backlash(scheme, criterion):
     """The two covariance updates (once-formed map + rank-nc corrections; per-step LU + Woodbury) are exact
     rewritings of the same step: nonlinear contacts, moving directions, time-varying mesh stiffness. Each
     scheme and each criterion is taken once (each pair compiles two programs, ~12 s each): the criterion
     only sets the linearized coefficients and the scheme only the noise matrices, which both paths share."""
-    kw = dict(dt=0.01, n_steps=300, save_every=10, criterion=criterion, noise_scheme=scheme)
+    kw = dict(dt=0.01, n_steps=300, save_every=10, criterion=criterion, integrator=INTEGRATORS[scheme]())
     a = pg.solve_moments(backlash_chain("constant"), **kw)
     b = pg.solve_moments(backlash_chain("function"), **kw)
     assert a.mean_u.dtype == jnp.float64
@@ -332,7 +354,8 @@ def _contact_space_data(nc, seed):
     )
 
 
-@pytest.mark.parametrize("criterion", ["force", "energy"])
+@pytest.mark.slow
+@pytest.mark.parametrize("criterion", [pg.ForceCriterion(), pg.EnergyCriterion()], ids=["force", "energy"])
 def test_closed_form_fixed_point_jacobian_equals_forward_mode_autodiff(criterion):
     """The Newton Jacobian of the contact-space fixed point is assembled in closed form from the law's own
     derivatives (pgtjax._linearization._evaluate); it must equal jax.jacfwd of the residual, including a
@@ -374,7 +397,8 @@ def _tangent_case(criterion, data):
     return law, z, _end_terms(law, nc, criterion, z, data), d_data
 
 
-@pytest.mark.parametrize("criterion", ["force", "energy"])
+@pytest.mark.slow
+@pytest.mark.parametrize("criterion", [pg.ForceCriterion(), pg.EnergyCriterion()], ids=["force", "energy"])
 def test_implicit_tangent_of_end_terms_equals_autodiff(criterion):
     """The tangent rule of the converged fixed point builds the end terms' derivative through z in closed form
     (law derivatives and dR^-1 = -R^-1 S dK_e R^-1); it must equal forward-mode autodiff of the end terms
@@ -395,8 +419,9 @@ def test_implicit_tangent_of_end_terms_equals_autodiff(criterion):
         np.testing.assert_allclose(got, want, rtol=1e-10, atol=1e-12 * float(jnp.max(jnp.abs(want))))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", ["general", "zero_std", "asymmetric_y"])
-@pytest.mark.parametrize("criterion", ["force", "energy"])
+@pytest.mark.parametrize("criterion", [pg.ForceCriterion(), pg.EnergyCriterion()], ids=["force", "energy"])
 def test_implicit_tangent_of_fixed_point_equals_autodiff_formula(criterion, case):
     """The closed-form tangent of the converged point, ``dz = -J^-1 (dR/ddata) ddata``, against the same
     formula built from plain autodiff: J by jacfwd of the residual in z, dR/ddata by a jvp of the residual
@@ -439,6 +464,7 @@ def test_bad_fixed_point_settings_raise():
         pg.solve_moments(system, dt=0.01, n_steps=4, max_iter=0)
 
 
+@pytest.mark.slow
 def test_derivative_rules_of_the_covariance_products_equal_autodiff_of_the_plain_products():
     """The covariance update's two hand-written derivative rules (``_quadratic_forms``: dX P dX^T and dX P;
     ``_congruence``: x P x^T) against forward- and reverse-mode autodiff of the plain matrix products, for a

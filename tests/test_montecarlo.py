@@ -12,6 +12,9 @@ from scipy import integrate
 
 import pgtjax as pg
 
+# the two built-in integrators, by the names the tests are parametrized with
+INTEGRATORS = {"trapezoidal": pg.Newmark, "newmark": pg.NewmarkBridge}
+
 KEY = jax.random.key(20261121)
 
 
@@ -35,10 +38,11 @@ def time_varying_system():
     )
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("scheme", ["trapezoidal", "newmark"])
 def test_linear_time_varying_mc_within_three_standard_errors(scheme):
     system = time_varying_system()
-    kw = dict(dt=0.02, n_steps=150, save_every=30, noise_scheme=scheme)
+    kw = dict(dt=0.02, n_steps=150, save_every=30, integrator=INTEGRATORS[scheme]())
     ref = pg.solve_moments(system, **kw)
     mc = pg.monte_carlo(system, n_samples=4000, key=KEY, chunk_size=4000, progress=False, **kw)
     se_mean, se_std = mc.standard_error("u")
@@ -50,6 +54,7 @@ def test_linear_time_varying_mc_within_three_standard_errors(scheme):
     assert mc.mean_u.dtype == jnp.float64
 
 
+@pytest.mark.slow
 def test_same_key_same_statistics_whatever_the_chunk_size():
     system = time_varying_system()
     kw = dict(
@@ -74,6 +79,7 @@ def test_same_key_same_statistics_whatever_the_chunk_size():
     assert 0 < float(a.histograms["u:x1"].sum()) <= 301
 
 
+@pytest.mark.slow
 def test_padding_samples_cannot_spoil_the_statistics_of_finite_samples():
     """A batch is padded to whole rows with weight-0 samples. If those drew noise of their own, a sample outside
     the run could be NaN (here: a law defined only near the mean deflection) while every real one is finite,
@@ -155,6 +161,7 @@ def exact_stationary_moments():
     return m1, np.sqrt(m2), p_gap
 
 
+@pytest.mark.slow
 def test_backlash_oscillator_mc_matches_exact_stationary_density(capsys):
     mean_x, std_x, p_gap = exact_stationary_moments()
     std_v = np.sqrt(np.pi * S0 / (DAMP * MASS))
@@ -176,14 +183,15 @@ def test_backlash_oscillator_mc_matches_exact_stationary_density(capsys):
             f"\nexact: mean {mean_x:.6e} std {std_x:.6e} P(gap) {p_gap:.4f}; "
             f"MC: mean {float(mc.mean_u[-1, 0]):.6e} std {float(mc.std_u[-1, 0]):.6e} P(gap) {p_loss:.4f}"
         )
-        for crit in ("force", "energy"):
+        for crit in (pg.ForceCriterion(), pg.EnergyCriterion()):
             sl = pg.solve_moments(backlash_oscillator(), criterion=crit, **kw)
             em = (float(sl.mean_u[-1, 0]) - mean_x) / std_x
             es = float(sl.std_u[-1, 0]) / std_x - 1
-            print(f"SL {crit:6s}: mean error {em:+.3f} std_x, std error {100 * es:+.2f} %")
+            print(f"SL {crit.name:6s}: mean error {em:+.3f} std_x, std error {100 * es:+.2f} %")
             assert abs(em) < 0.5 and abs(es) < 0.3
 
 
+@pytest.mark.slow
 def test_initial_covariance_and_observables_agree_with_the_recursion():
     """MC from a Gaussian initial state, with a time-dependent observable y = C(t) u, against the recursion."""
     system = time_varying_system()
@@ -210,6 +218,7 @@ def test_initial_covariance_and_observables_agree_with_the_recursion():
     np.testing.assert_allclose(ref.std_obs[0, 1], np.sqrt(0.01**2 + 0.02**2 + 0.01 * 0.02), rtol=1e-12)
 
 
+@pytest.mark.slow
 def test_pattern_table_contact_solve_equals_per_sample_newton():
     """Batched backlash solve (Jacobian inverses of all 2^nc contact patterns) vs per-sample Newton."""
     from pgtjax._newmark import solve_contacts, solve_contacts_batch
@@ -250,6 +259,7 @@ def _closed_or_gap_batch(rng, nc, batch, closed_patterns, b):
     return jnp.asarray(np.where(closed_patterns, closed, gap))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "route, batch",
     [
@@ -299,6 +309,7 @@ def test_majority_pattern_contact_solve_on_every_route(route, batch):
     np.testing.assert_allclose(np.asarray(d_batch)[rows], alone, rtol=0, atol=1e-17)
 
 
+@pytest.mark.slow
 def test_majority_route_with_open_contacts_and_iterations_agrees_with_the_table(monkeypatch):
     """A majority pattern with open contacts, a few other patterns, and coupling strong enough that contacts
     change piece, so that the residual iteration runs (and samples stop as they converge): the majority route
@@ -338,6 +349,7 @@ def test_majority_route_with_open_contacts_and_iterations_agrees_with_the_table(
     np.testing.assert_allclose(np.asarray(d_majority)[rows], alone, rtol=0, atol=1e-17)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("symmetric", [True, False])
 @pytest.mark.parametrize("nc", [1, 6, 12])
 def test_pattern_inverses_without_pivoting_match_lapack_inverses(nc, symmetric):
@@ -371,6 +383,7 @@ def test_pattern_inverses_without_pivoting_match_lapack_inverses(nc, symmetric):
         np.testing.assert_array_equal(inverses[0], np.eye(nc))
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(jax.default_backend() != "cpu", reason="looks for LAPACK custom calls of the CPU backend")
 def test_contact_solve_of_an_on_off_law_makes_no_lapack_call():
     """The backlash contact solve is elementwise work and products only: a compiled solve holds no LAPACK
@@ -399,6 +412,7 @@ def test_contact_solve_of_an_on_off_law_makes_no_lapack_call():
         assert not lapack_calls(compiled), nc
 
 
+@pytest.mark.slow
 def test_constant_stiffness_mc_equals_time_function_mc():
     """Monte Carlo with the once-formed contact-free map (constant K) and with the per-step solve (K as a
     function of time) draw the same noise and must give the same statistics up to rounding."""
@@ -477,6 +491,7 @@ def _chain_with_contacts(n=14, seed=5, damping_scale=1.0):
     return system, obs
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "scheme, damping_scale", [("trapezoidal", 1.0), ("newmark", 1.0), ("trapezoidal", 60.0)]
 )
@@ -505,7 +520,7 @@ def test_eigen_coordinates_reproduce_the_physical_coordinate_scheme(scheme, damp
         n_steps=120,
         save_every=8,
         progress=False,
-        noise_scheme=scheme,
+        integrator=INTEGRATORS[scheme](),
         initial_displacement=np.full(n, 2e-3),
         initial_covariance=p0,
         observables=obs,
@@ -525,6 +540,7 @@ def test_eigen_coordinates_reproduce_the_physical_coordinate_scheme(scheme, damp
     assert float(eig.unconverged) == float(phys.unconverged) == 0.0
 
 
+@pytest.mark.slow
 def test_gear_pair_eigen_step_with_every_part_fused_reproduces_the_physical_step():
     """The gear pair's map has 2 complex pairs and 2 real eigenvalues at dt = 10 us: every part of the state
     enters the contact deflections as outer products. On the same draws the statistics agree with the
@@ -548,6 +564,7 @@ def test_gear_pair_eigen_step_with_every_part_fused_reproduces_the_physical_step
         np.testing.assert_allclose(a, b, rtol=0, atol=1e-10 * np.max(np.abs(b)), err_msg=name)
 
 
+@pytest.mark.slow
 def test_eigen_coordinates_without_contacts_or_complex_pairs_reproduce_the_physical_scheme():
     """A heavily damped chain without contacts: every eigenvalue of its map is real (no Re or Im parts, no
     forces), so the recorded quantities come from one matrix product alone; observables without an offset.
@@ -630,6 +647,7 @@ def test_initial_draws_move_only_at_rounding_level_with_the_initial_covariance()
     assert np.all(np.abs(got / expected - 1.0) < 4.0 / np.sqrt(2 * 63))
 
 
+@pytest.mark.slow
 def test_eigen_coordinates_refused_where_they_cannot_be_used(monkeypatch):
     import pgtjax._eigenbasis as eigenbasis
 
@@ -664,6 +682,7 @@ def _pieces(d, b):
     return np.where(d > b, 1, np.where(d < -b, 2, 0))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", ["all_keep_their_piece", "many_change_piece"])
 def test_affine_piece_shortcut_equals_the_residual_iteration(case):
     """The backlash solve accepts the first Newton step where no contact leaves its affine piece (the
@@ -743,6 +762,7 @@ def test_designs_differing_only_in_values_share_one_compiled_sampler(caplog):
     assert len(compiled) == 1, f"{len(compiled)} compilations for two designs of equal shape"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("model", ["gear_pair", "chain"])
 def test_wide_vectors_change_no_statistic(monkeypatch, model):
     """Monte Carlo compiled for 512-bit vectors (``pgtjax._parallel.wide_vectors``: CPUs with AVX-512) gives
@@ -832,6 +852,7 @@ def test_saved_scan_gives_each_step_its_own_input_when_a_block_is_formed_in_part
         saved_scan(step, lambda c, i, b: i, 0, None, n_blocks=1, save_every=4, rows_per_input=5)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("model", ["gear_pair", "chain"])
 def test_long_blocks_drawn_in_parts_give_the_whole_blocks_statistics(monkeypatch, model):
     """A saved block drawn a part at a time (its draws and step inputs formed for 5 + 5 + 3 of its 13 steps:
@@ -868,6 +889,7 @@ def test_long_blocks_drawn_in_parts_give_the_whole_blocks_statistics(monkeypatch
                 )
 
 
+@pytest.mark.slow
 def test_rows_drawn_at_once_fit_the_budget_and_prefer_a_divisor(monkeypatch):
     from pgtjax import _montecarlo, _parallel
 
@@ -948,6 +970,7 @@ def _cumulative(counts):
     return np.cumsum(np.asarray(counts), axis=-1)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("propagation", ["eigen", "physical"])
 def test_peaks_of_a_noise_free_run_count_the_largest_values_that_simulate_gives(propagation):
     """Without noise every sample follows the deterministic response, which :func:`pgtjax.simulate` computes
@@ -1029,6 +1052,7 @@ def test_peaks_of_a_noise_free_run_count_the_largest_values_that_simulate_gives(
         np.testing.assert_array_equal(exceedance.standard_error, np.zeros_like(reached))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("propagation", ["eigen", "physical"])
 def test_asking_for_peaks_leaves_every_other_statistic_the_same(propagation):
     """The peaks are computed beside the step, not within it: a run with peaks of a force, a displacement and
@@ -1058,6 +1082,7 @@ def test_asking_for_peaks_leaves_every_other_statistic_the_same(propagation):
     }
 
 
+@pytest.mark.slow
 def test_peaks_lie_above_every_earlier_magnitude_and_grow_with_time():
     """With noise: each sample's peak is at least its magnitude at every saved time so far, so the peaks'
     cumulative counts lie below the magnitudes' at every earlier time and fall with time; at t0 they are the

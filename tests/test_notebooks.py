@@ -82,6 +82,7 @@ def test_every_notebook_has_an_expected_figure_count():
     assert sorted(EXPECTED_FIGURES) == [p.stem for p in NOTEBOOKS]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])
 def test_notebook_executes(path, monkeypatch):
     for k, v in SMALL.items():

@@ -33,6 +33,7 @@ def small_params(**over):
     return pm.load_params(d)
 
 
+@pytest.mark.slow
 def test_mass_spd_stiffness_symmetric_apart_from_wind_coupling():
     p = pm.default_params()
     lay = pm.layout(p)
@@ -51,6 +52,7 @@ def test_mass_spd_stiffness_symmetric_apart_from_wind_coupling():
     assert s.mass.dtype == jnp.float64
 
 
+@pytest.mark.slow
 def test_sun_planet_deflection_is_eq_3_2():
     p = small_params()
     lay = pm.layout(p)
@@ -167,6 +169,7 @@ def lin_parker_params(n_planets):
     return p
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("n_planets", [3, 4, 5])
 def test_rigid_ring_option_reproduces_lin_parker_table(n_planets):
     p = lin_parker_params(n_planets)
@@ -210,6 +213,7 @@ def rigid_equivalent(p):
     return dataclasses.replace(p, rigid_ring=body, ring_model="rigid")
 
 
+@pytest.mark.slow
 def test_elastic_ring_model_tends_to_the_rigid_ring_model():
     errors = []
     for scale in (1.0, 1e2, 1e4):
@@ -224,6 +228,7 @@ def test_elastic_ring_model_tends_to_the_rigid_ring_model():
     assert errors[2] < 1e-3, errors
 
 
+@pytest.mark.slow
 def test_never_losing_contact_mc_within_three_standard_errors_of_recursion():
     """Default thesis loads from the static equilibrium: the meshes stay in contact (|mean| - b > 6 std), so
     SL is exact and MC of the nonlinear system must agree with the recursion within sampling error."""
@@ -309,6 +314,7 @@ def _reverse_jacobian(x, save_every: int, checkpoint: bool):
     return jacobian
 
 
+@pytest.mark.slow
 def test_gradients_wrt_rim_thickness_and_support_stiffness_match_finite_differences():
     """d std(radial displacement of ring node 1, between two bolts) and d std(ring-planet 1 meshing force) /
     d(rim thickness, bolt radial stiffness) through SL + recursion (reverse mode, as the study computes them),
@@ -320,6 +326,7 @@ def test_gradients_wrt_rim_thickness_and_support_stiffness_match_finite_differen
     np.testing.assert_allclose(sens["value"], _ring_response(RING_DESIGN, RING_STEPS, True), rtol=1e-12)
 
 
+@pytest.mark.slow
 def test_gradient_independent_of_save_interval_checkpointing_and_mode():
     """The reverse pass keeps the fixed points' solutions and their tangent rule's quantities (checkpoint
     policy) instead of recomputing them: the gradient must not depend on how the run is split into saved
@@ -335,6 +342,7 @@ def test_gradient_independent_of_save_interval_checkpointing_and_mode():
     np.testing.assert_allclose(forward, want, rtol=1e-9)
 
 
+@pytest.mark.slow
 def test_models_differing_only_in_their_bolts_share_one_compiled_solver():
     """The bolts enter the stiffness matrix only: the system and the contact-point observables of a support-count
     sweep hold no copy of the (static) support nodes, so every variant has the same compiled solver's key
@@ -366,6 +374,7 @@ def test_build_checks_values_in_python_and_assembles_in_one_compiled_program(cap
     assert not np.allclose(systems[0].stiffness, systems[1].stiffness)  # the values did reach the program
 
 
+@pytest.mark.slow
 def test_checks_before_a_run_evaluate_the_time_functions_in_one_compiled_program(caplog):
     """The checks a solver makes before it runs (the system's fields, its stability, the observables at t0)
     evaluate the model's time functions in one compiled program per check, reused by every model of the same
@@ -460,6 +469,7 @@ def test_derived_stiffness_matches_appendix_3a3_blocks():
     np.testing.assert_allclose(k[car, car], k_c + np.diag([5e9, 5e9, 0.0]), rtol=1e-12, atol=1e-3)
 
 
+@pytest.mark.slow
 def test_study_grids_outputs_and_symmetry_zero_dofs(tmp_path):
     """The study saves SL ``sl_refine`` times as often as MC: SL on MC's grid must equal an SL run saved
     there directly; the symmetric train's translations are reported as round-off, not compared; the
@@ -643,6 +653,7 @@ def test_study_grid_refuses_a_step_that_aliases_the_mesh_stiffness_or_spans_the_
             study._grid(p, 0.0027, periods, 10, 1)
 
 
+@pytest.mark.slow
 def test_rigid_ring_study_with_another_criterion_writes_its_outputs(tmp_path):
     """The rigid-ring model has no ring nodes or contact-point observables; the energy criterion alone."""
     from pgtjax.studies import planetary as study
@@ -654,7 +665,7 @@ def test_rigid_ring_study_with_another_criterion_writes_its_outputs(tmp_path):
         periods=0.01,
         n_saves=3,
         sl_refine=2,
-        criteria=("energy",),
+        criteria=(pg.EnergyCriterion(),),
         key=jax.random.key(1),
         progress=False,
     )
@@ -733,6 +744,7 @@ def test_per_cycle_envelope_and_si_prefixes():
     ]
 
 
+@pytest.mark.slow
 def test_sweep_figure_names_curves_that_coincide(caplog):
     """sun_u does not depend on the rim thickness (the sun's mean torque balance); the figure says so. The
     variants, each with its own contact-point observables, share one compiled SL solver."""

@@ -55,6 +55,7 @@ def test_erfinv_matches_scipy_near_zero_and_near_one():
     assert ours[-1] == 0.0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("width", [1, 2, 3])
 def test_block_normals_are_each_keys_normals(width):
     keys = _keys(5)
@@ -71,6 +72,7 @@ def test_block_normals_are_each_keys_normals(width):
     assert np.mean(block == theirs) > 0.3  # most are the same double: only the last bits may differ
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("width", [1, 3])
 def test_part_of_a_block_is_that_part_of_the_whole_block(width):
     """Rows drawn a part at a time (Monte Carlo's long saved blocks) are the whole block's rows, double for
@@ -127,6 +129,7 @@ def test_keys_of_another_generator_draw_jax_normals_exactly():
     assert _random.stream(key) == "jax.random.normal" and _random.stream(jax.random.key(4)) == _random.STREAM
 
 
+@pytest.mark.slow
 def test_monte_carlo_with_an_rbg_key_agrees_with_a_threefry_key_within_sampling_error():
     import pgtjax as pg
     from pgtjax.models import gear_pair as gp

@@ -56,6 +56,7 @@ def test_foreign_npz_and_missing_file(tmp_path):
         pg.load_results(tmp_path / "cut.npz")
 
 
+@pytest.mark.slow
 def test_a_process_killed_while_overwriting_leaves_the_old_file_loadable(tmp_path):
     target = tmp_path / "result.npz"
     pg.save_results(target, small_result(), version="old")
@@ -98,6 +99,7 @@ def _assert_same_result(a, b):
             assert x == y, name
 
 
+@pytest.mark.slow
 def test_deflection_lag_round_trips_with_its_unit(tmp_path):
     """An SL result with each deflection's, displacement's and observable's covariance with the step before
     (solve_moments(deflection_lag=True)) read back equal from .npz and .nc, the .nc variables with their units;

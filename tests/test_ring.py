@@ -34,6 +34,7 @@ def _section(h, b=0.03):
 # ------------------------------------------------------------------------------------------------
 # element
 # ------------------------------------------------------------------------------------------------
+@pytest.mark.slow
 @pytest.mark.parametrize("n_el,h", [(4, 0.02), (16, 0.02), (64, 0.002), (256, 0.02)])
 def test_element_rigid_modes_rank_and_mass(n_el, h):
     angle, R = 2 * math.pi / n_el, 0.19
@@ -103,6 +104,7 @@ def _flexural(p, ns):
     return np.array([f[np.flatnonzero(nd == n)[0]] for n in ns])
 
 
+@pytest.mark.slow
 def test_free_ring_converges_to_thin_ring_theory():
     """Inextensional thin ring without rotary inertia (Hoppe; Soedel, Blevins):
     w_n^2 = E I n^2 (n^2-1)^2 / (rho A R^4 (n^2+1)).  h/R = 0.01 so extension is a ~1e-6 effect."""
@@ -315,6 +317,7 @@ def test_load_transfer_jit_vmap_grad():
     assert dofs.shape == (6,) and n.shape == (3, 6)
 
 
+@pytest.mark.slow
 def test_preformed_nodal_inverse_gives_the_same_shape_functions_and_radius_gradient():
     """A moving mesh evaluates the shape functions at every step with the element inverse formed once
     (``ring_nodal_inverse``); values and their derivative in the ring radius must equal those formed on the
@@ -368,6 +371,7 @@ def test_frequency_gradients_match_finite_differences():
         np.testing.assert_allclose(grads[i], fd, rtol=1e-5)
 
 
+@pytest.mark.slow
 def test_gradient_of_degenerate_free_ring_frequency_is_finite_and_correct():
     """Free ring: rigid modes (lambda ~ 0) and degenerate n = 2 pair must not poison the gradient;
     thin-ring theory gives f ~ h, so d f / d h ~ f / h as a sanity bound."""

@@ -27,6 +27,7 @@ import math
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 from pgtjax.models import ring_moving_load as rml
 from pgtjax.models.ring import ring_load_vector, ring_matrices
@@ -164,6 +165,7 @@ def test_hand_check_reduces_to_the_textbook_clamped_beam():
     assert 4.0 < (L**3 / (192 * E * I)) / Dr[0, 0] < 7.0
 
 
+@pytest.mark.slow
 def test_static_deflection_matches_hand_check():
     """pgtjax's bolted ring (36 elements, six bolts), static K^-1 F: the mid-node's radial deflection under a
     unit outward load on it, and under a unit mesh load at points of the span, against the hand check."""
@@ -205,6 +207,7 @@ def test_bending_stress_under_f0_is_near_steel_yield():
     assert 750e6 < sigma * (F0 + FA) / F0 < 950e6
 
 
+@pytest.mark.slow
 def test_mean_and_std_magnitudes_and_the_readings_that_would_match_the_thesis():
     """A short moving-load run at 30 rad/s (load 1 over the first span): the maximum mean at the mid-node is
     the quasi-static c_max (F0 + f_a) = 1.0 mm of the hand check, linear in the forces; its std is the

@@ -88,6 +88,7 @@ def test_validation_errors():
         rml.support_case(_small(), 4)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("propagation", ["eigen", "physical"])
 def test_peaks_of_a_moving_contact_point_follow_every_step_at_its_time(propagation):
     """The contact-point output C(t) u moves with the load. Without noise every sample follows the response
@@ -127,6 +128,7 @@ def test_peaks_of_a_moving_contact_point_follow_every_step_at_its_time(propagati
     np.testing.assert_array_equal(np.asarray(mc.peak_histograms[name]), expected)
 
 
+@pytest.mark.slow
 def test_monte_carlo_matches_recursion_dtypes_and_observables():
     p = _small(carrier_speed=30.0)
     s = rml.build(p)
@@ -189,6 +191,7 @@ def test_modal_model_outputs_include_the_static_correction():
         rml.observables(p, contact=False, mid=False)
 
 
+@pytest.mark.slow
 def test_gradient_matches_finite_differences():
     p0 = _small(carrier_speed=30.0)
     mid = f"ring_node{rml.mid_node(p0.ring)}_radial"
@@ -221,6 +224,7 @@ def _parser():
     return parser
 
 
+@pytest.mark.slow
 def test_cli_smoke(tmp_path, capsys):
     parser = _parser()
     args = parser.parse_args(["ring-modal", "--n-elements", "12", "--modes", "4", "--json"])

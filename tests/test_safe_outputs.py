@@ -83,6 +83,7 @@ def test_files_written_during_the_run_are_listed_but_not_moved(tmp_path):
     }
 
 
+@pytest.mark.slow
 def test_a_process_killed_while_overwriting_a_result_file_leaves_it_loadable(tmp_path):
     """save_results rewrites a large result in a loop; SIGKILL at varied moments; the file must load each
     time (the old or the new content, never a stub)."""
@@ -144,6 +145,7 @@ def _wait_until_running(proc, out):
         time.sleep(0.02)
 
 
+@pytest.mark.slow
 def test_ctrl_c_exits_130_with_one_line_in_20_of_20_tries(tmp_path):
     """SIGINT to a running study at 20 moments, from its first instant to seconds into the computation (four
     processes at a time): exit status 130 every time, one line on stderr, no traceback or crash, no staging

@@ -65,6 +65,7 @@ def reference():
     return arrays(run(chunk_size=203))
 
 
+@pytest.mark.slow
 def test_sharded_over_four_devices_equals_one_device(tmp_path, reference):
     out = tmp_path / "sharded.npz"
     code, err = _finish(_worker("sharded", out))
@@ -80,6 +81,7 @@ def test_sharded_over_four_devices_equals_one_device(tmp_path, reference):
     assert data["designs_four"].shape == (5,)
 
 
+@pytest.mark.slow
 def test_use_cpu_cores_shards_over_one_device_per_core_with_the_same_statistics(tmp_path, reference):
     """``pg.use_cpu_cores()`` (what ``pgtjax --cpu-devices`` calls) makes one CPU device per available core; the
     run is split over them and its statistics equal the one-device run's."""
@@ -130,6 +132,7 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+@pytest.mark.slow
 def test_two_processes_equal_one_process(tmp_path, reference):
     port = _free_port()
     procs = [_worker("process", p, 2, port, tmp_path / f"p{p}.npz") for p in range(2)]
@@ -151,6 +154,7 @@ def test_two_processes_equal_one_process(tmp_path, reference):
             np.testing.assert_allclose(saved["value"], np.asarray(designs.value)[rows], rtol=1e-12)
 
 
+@pytest.mark.slow
 def test_processes_that_would_split_the_samples_differently_are_refused(tmp_path):
     """Each process derives every process's sample ids from its own batch size: unequal ones would skip some
     samples and repeat others, so the run stops in every process before computing anything."""
@@ -165,6 +169,7 @@ def test_processes_that_would_split_the_samples_differently_are_refused(tmp_path
     assert not list(tmp_path.iterdir())
 
 
+@pytest.mark.slow
 def test_processes_given_different_designs_or_a_bad_option_all_refuse():
     """A design batch is split by position: processes holding different designs would mix two batches. And
     an option that one process alone refuses must stop the other too, not leave it waiting in a collective."""
@@ -180,6 +185,7 @@ def test_processes_given_different_designs_or_a_bad_option_all_refuse():
             assert code == 3 and message in err, (variant, code, err)
 
 
+@pytest.mark.slow
 def test_one_process_refusing_its_options_stops_every_process(tmp_path):
     """A resume where one node lacks its checkpoint file: that process refuses, and the other stops too
     instead of waiting for it at the end of the run."""
@@ -195,6 +201,7 @@ def test_one_process_refusing_its_options_stops_every_process(tmp_path):
     assert code0 == 3 and "process(es) 1 refused this run's options" in err0, err0
 
 
+@pytest.mark.slow
 def test_a_process_failing_mid_run_stops_every_process_and_the_run_resumes(tmp_path, reference):
     """Process 1's second checkpoint write fails (a full disk, injected by the worker) after every check has
     passed: both processes stop with a message instead of process 0 waiting for it in the final exchange
@@ -239,6 +246,7 @@ def test_a_process_failing_mid_run_stops_every_process_and_the_run_resumes(tmp_p
         _assert_same(dict(np.load(tmp_path / "resumed" / f"p{p}.npz")), reference, 1e-12)
 
 
+@pytest.mark.slow
 def test_killed_after_second_checkpoint_resumes_to_the_uninterrupted_run(tmp_path):
     checkpoint = tmp_path / "mc.npz"
     code, err = _finish(_worker("killed", checkpoint))
@@ -254,6 +262,7 @@ def test_killed_after_second_checkpoint_resumes_to_the_uninterrupted_run(tmp_pat
     _assert_same(again, uninterrupted, 0.0)
 
 
+@pytest.mark.slow
 def test_design_batch_killed_after_second_checkpoint_resumes(tmp_path):
     checkpoint = tmp_path / "designs.npz"
     code, err = _finish(_worker("killed-designs", checkpoint))
@@ -272,6 +281,7 @@ def test_design_batch_killed_after_second_checkpoint_resumes(tmp_path):
         pd.evaluate(problem, DESIGNS, checkpoint=checkpoint, resume=True, batch_size=1)
 
 
+@pytest.mark.slow
 def test_resume_refuses_another_run_and_bad_paths(tmp_path):
     checkpoint = tmp_path / "mc.npz"
     run(chunk_size=100, checkpoint=checkpoint)
@@ -362,6 +372,7 @@ def test_resume_refuses_another_run_and_bad_paths(tmp_path):
         run(devices=[])
 
 
+@pytest.mark.slow
 def test_cli_resume_after_an_interruption_gives_the_same_outputs(tmp_path, monkeypatch, capsys):
     import json
 
@@ -435,6 +446,7 @@ def test_cli_cpu_devices_option(capsys):
     assert main(["--cpu-devices", "1", "gear-pair-modal", "--json"]) == 0
 
 
+@pytest.mark.slow
 def test_cli_cpu_devices_warns_in_one_line_on_an_affected_jaxlib():
     """In a fresh process ``pgtjax --cpu-devices 2`` starts two devices; on a jaxlib whose batched LAPACK calls
     wait on XLA's pool the user gets one warning line (not a Python traceback-style warning)."""
@@ -453,6 +465,7 @@ def test_cli_cpu_devices_warns_in_one_line_on_an_affected_jaxlib():
         assert not lines, proc.stderr
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("affected", [False, True])
 def test_cli_uses_every_core_by_default_unless_the_jaxlib_can_hang(affected):
     """Without ``--cpu-devices`` the CLI starts one CPU device per available core on a jaxlib whose batched

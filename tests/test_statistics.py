@@ -29,6 +29,7 @@ def _oscillator():
 KW = dict(dt=0.01, n_steps=4000, save_every=20)
 
 
+@pytest.mark.slow
 def test_sl_contact_loss_probability_matches_monte_carlo_counts():
     system = _oscillator()
     sl = pg.solve_moments(system, **KW)
@@ -64,6 +65,7 @@ def test_time_average_with_batch_means_covers_the_exact_stationary_moments():
     assert 0.5 * expected_se < float(avg.mean_se[0]) < 2.0 * expected_se
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "kwargs, match",
     [
@@ -87,6 +89,7 @@ def test_time_average_bad_input(kwargs, match):
         mc.time_average(**kwargs)
 
 
+@pytest.mark.slow
 def test_gap_probability_far_from_the_gap_keeps_its_digits():
     from scipy.stats import norm
 

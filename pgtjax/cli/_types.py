@@ -6,6 +6,8 @@ from __future__ import annotations
 import argparse
 import math
 
+from .. import AbstractCriterion, EnergyCriterion, ForceCriterion
+
 
 def _number(kind, text: str, accepted: str, ok):
     try:
@@ -85,11 +87,21 @@ def csv_names(text: str) -> tuple[str, ...]:
     return tuple(c.strip() for c in text.split(",") if c.strip())
 
 
-def criteria(text: str) -> tuple[str, ...]:
-    """Comma-separated SL criteria, at least one, each ``force`` or ``energy``."""
+# the CLI's names of the SL criteria: the one place a name becomes a criterion object
+CRITERIA = {"force": ForceCriterion, "energy": EnergyCriterion}
+
+
+def criteria(text: str) -> tuple[AbstractCriterion, ...]:
+    """Comma-separated SL criteria, at least one, each ``force`` or ``energy``: their objects, in order."""
     names = csv_names(text)
-    if not names or any(c not in ("force", "energy") for c in names):
+    if "energy_origin" in names:
         raise argparse.ArgumentTypeError(
-            f"expected comma-separated SL criteria among force, energy, got {text!r}"
+            "'energy_origin' (thesis Eq. 4.43 as printed, the potential measured about the origin) is not "
+            "offered: under a static load it overestimates k_e by (mu - b)^2 / (3 sigma^2) and its fixed point "
+            "can settle on a spurious branch; 'energy' equals Eq. 4.43 wherever |mu| <= b (docs/corrections.md, C1)"
         )
-    return names
+    if not names or any(c not in CRITERIA for c in names):
+        raise argparse.ArgumentTypeError(
+            f"expected comma-separated SL criteria among {', '.join(CRITERIA)}, got {text!r}"
+        )
+    return tuple(CRITERIA[c]() for c in names)

@@ -11,6 +11,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .. import AbstractCriterion, ForceCriterion
 from .._checkpoint import load_checkpoint, process_checkpoint_file, save_checkpoint, tree_digest
 from .._deterministic import static_equilibrium
 from .._failure import SolverError
@@ -51,7 +52,7 @@ class Response(eqx.Module):
     initial_covariance: Callable | None = eqx.field(static=True, default=None)
     observables: Callable | None = eqx.field(static=True, default=None)
     static_start: bool = eqx.field(static=True, default=True)
-    criterion: str = eqx.field(static=True, default="force")
+    criterion: AbstractCriterion = eqx.field(static=True, default=ForceCriterion())
     rtol: float = eqx.field(static=True, default=1e-10)
     checkpoint_blocks: int = eqx.field(static=True, default=1)
     covariance_dofs: tuple[str, ...] | str | None = eqx.field(

@@ -19,8 +19,8 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from .. import plots
-from .._contact import as_criterion
+from .. import EnergyCriterion, ForceCriterion, plots
+from .._contact import check_criterion
 from .._linearization import solve_moments
 from .._modal import modal_analysis
 from .._montecarlo import check_options as check_monte_carlo_options
@@ -85,7 +85,9 @@ def gaussian_contact_loss(mu, sigma, b):
     return norm.cdf((b - mu) / sigma) - norm.cdf((-b - mu) / sigma)
 
 
-def step_convergence(params=None, *, dts=(4e-5, 2e-5, 1e-5, 5e-6, 2.5e-6), t_end=0.04, criterion="force"):
+def step_convergence(
+    params=None, *, dts=(4e-5, 2e-5, 1e-5, 5e-6, 2.5e-6), t_end=0.04, criterion=ForceCriterion()
+):
     """SL moments of delta at ``t_end`` for a sequence of steps; relative change against the finest step.
 
     Returns a list of dicts: ``dt_s``, ``omega_max_dt`` (highest natural frequency times the step), the mean
@@ -153,7 +155,7 @@ def run_study(
     params=None,
     *,
     regimes=None,
-    criteria=("force", "energy"),
+    criteria=(ForceCriterion(), EnergyCriterion()),
     n_samples: int = 20_000,
     dt: float = 1e-5,
     t_end: float = 0.04,
@@ -182,7 +184,7 @@ def run_study(
             f"saves), got {late}"
         )
     for criterion in criteria:
-        as_criterion(criterion)
+        check_criterion(criterion)
     if n_samples:
         check_monte_carlo_options(n_samples, chunk_size)  # before SL: fail at once
         if chunk_size is None:
@@ -193,10 +195,10 @@ def run_study(
         p = params.replace(torque_in=t_in, torque_out=t_out)
         system = gp.build(p)
         kw = dict(dt=dt, n_steps=n_steps, save_every=save_every)
-        sl = {c: solve_moments(system, criterion=c, **kw) for c in criteria}
+        sl = {c.name: solve_moments(system, criterion=c, **kw) for c in criteria}
         mc = None
         if n_samples:
-            ref = sl[criteria[0]]
+            ref = sl[criteria[0].name]
             mu, sd = float(np.max(ref.mean_delta)), float(np.max(ref.std_delta))
             lo, hi = min(mu - 8 * sd, -b - 3 * sd), mu + 8 * sd
             mc = monte_carlo(
@@ -215,7 +217,7 @@ def run_study(
         dt,
         n_steps * dt,
         n_samples,
-        settings=dict(criteria=list(criteria), n_saves=n_saves, pdf_times=list(pdf_times)),
+        settings=dict(criteria=[c.name for c in criteria], n_saves=n_saves, pdf_times=list(pdf_times)),
     )
 
 
@@ -485,7 +487,7 @@ def format_error_table(rows: list[dict]) -> str:
 def format_header(regimes, *, criteria, n_samples: int, dt: float, t_end: float) -> str:
     """One line describing a :func:`run_study` call (the CLI's first line)."""
     return (
-        f"pgtjax gear pair (thesis ch. 4): {len(regimes)} regimes, SL {', '.join(criteria)}, "
+        f"pgtjax gear pair (thesis ch. 4): {len(regimes)} regimes, SL {', '.join(c.name for c in criteria)}, "
         f"MC {n_samples} samples, dt = {dt:g} s, t_end = {t_end:g} s"
     )
 

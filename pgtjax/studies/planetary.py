@@ -23,8 +23,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import plots
-from .._contact import as_criterion
+from .. import AbstractCriterion, ForceCriterion, plots
+from .._contact import check_criterion
 from .._deterministic import static_equilibrium
 from .._linearization import solve_moments
 from .._modal import modal_analysis
@@ -151,7 +151,7 @@ def run_study(
     periods=1.0,
     n_saves=2000,
     sl_refine=1,
-    criteria=("force",),
+    criteria=(ForceCriterion(),),
     key=None,
     chunk_size=None,
     progress=True,
@@ -171,9 +171,11 @@ def run_study(
     p = pm.default_params() if params is None else params
     criteria = tuple(criteria)
     if not criteria:
-        raise ValueError("`criteria` must name at least one SL criterion (force, energy)")
+        raise ValueError(
+            "`criteria` must give at least one SL criterion, e.g. (pgtjax.ForceCriterion(), pgtjax.EnergyCriterion())"
+        )
     for criterion in criteria:
-        as_criterion(criterion)
+        check_criterion(criterion)
     check_count("peak_force_bins", peak_force_bins, minimum=0)
     if peak_force_bins and not n_samples:
         raise ValueError("`peak_force_bins` counts Monte Carlo samples: it needs `n_samples` >= 2")
@@ -204,12 +206,14 @@ def run_study(
             f"`peak_start` ({peak_start:g} s) is nearest the last Monte Carlo save ({saved[-1]:g} s): the peaks "
             f"need saved times after it (saves every {saved[1]:g} s)"
         )
-    sl = {c: solve_moments(system, criterion=c, save_every=sl_every, **kw) for c in criteria}
+    sl = {c.name: solve_moments(system, criterion=c, save_every=sl_every, **kw) for c in criteria}
     mc = None
     if n_samples:
         peaks, histogram_times = {}, ()
         if peak_force_bins:
-            peaks, histogram_times = peak_force_bins_of(sl[criteria[0]], peak_force_bins, saved, first_peak)
+            peaks, histogram_times = peak_force_bins_of(
+                sl[criteria[0].name], peak_force_bins, saved, first_peak
+            )
         mc = monte_carlo(
             system,
             n_samples=n_samples,
@@ -233,7 +237,7 @@ def run_study(
         periods=periods,
         n_steps=kw["n_steps"],
         t_end_s=kw["n_steps"] * dt,
-        criteria=list(criteria),
+        criteria=[c.name for c in criteria],
         mc_save_every=mc_every,
         sl_save_every=sl_every,
         sl_refine=mc_every // sl_every,
@@ -245,7 +249,7 @@ def run_study(
 
 
 def sl_peak_estimates(
-    system, kw: dict, criterion: str, mc: MonteCarloResult, start: float | None = None
+    system, kw: dict, criterion: AbstractCriterion, mc: MonteCarloResult, start: float | None = None
 ) -> dict:
     """SL's estimate of each meshing force's peak at the Monte Carlo's peak levels (the bins' upper edges) and
     histogram times, the peaks taken from ``start`` (s): ``{quantity: {"levels", "probability", "lower_bound"}}``
@@ -679,7 +683,7 @@ def format_header(
         f"pgtjax planetary gear train (thesis ch. 3): {params.ring_model} ring, {params.n_planets} planets; "
         f"{n_steps} steps of {dt:g} s = {t_end:.2f} s ({t_end / carrier_period(params):.3f} carrier periods of "
         f"{carrier_period(params):.2f} s); mean rotor torque {mean_rotor_torque(params) / 1e3:.1f} kN m "
-        f"(wind {float(params.wind.mean_wind_speed):g} m/s); SL {', '.join(criteria)}, "
+        f"(wind {float(params.wind.mean_wind_speed):g} m/s); SL {', '.join(c.name for c in criteria)}, "
         + (f"MC {n_samples} samples saved every {_steps(mc_every)}" if n_samples else "no MC")
     )
 
