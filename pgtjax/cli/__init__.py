@@ -20,10 +20,9 @@ import time
 import warnings
 from pathlib import Path
 
-from .._config import use_compilation_cache
-from .._failure import ProcessFailedError, SolverError
+from .. import ProcessFailedError, SolverError, use_compilation_cache, use_cpu_cores
 from .._files import interrupted_message
-from .._parallel import lapack_batches_wait_on_pool, use_cpu_cores
+from .._parallel import lapack_batches_wait_on_pool
 from . import back_to_back, design, gear_pair, planetary, ring
 from ._scale import checkpoint_path, checkpoints_of_run
 from ._types import positive_int

@@ -12,7 +12,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._results import MomentResult
+from .. import MomentResult
 
 
 class Names(eqx.Module):

@@ -16,7 +16,7 @@ import numpy as np
 import optax
 import optax.tree_utils as otu
 
-from .._failure import SolverError
+from .. import SolverError
 from .._files import write_atomic, write_json
 from .._progress import progress_bar
 from .._system import check_count

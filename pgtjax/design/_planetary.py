@@ -10,7 +10,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._system import Observables, check_count
+from .. import Observables
+from .._system import check_count
 from ..models import planetary as pm
 from ..models.ring import ring_nodal_inverse
 from ._problem import Response

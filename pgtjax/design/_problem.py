@@ -11,12 +11,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import AbstractCriterion, ForceCriterion
+from .. import AbstractCriterion, ForceCriterion, SolverError, monte_carlo, solve_moments, static_equilibrium
 from .._checkpoint import load_checkpoint, process_checkpoint_file, save_checkpoint, tree_digest
-from .._deterministic import static_equilibrium
-from .._failure import SolverError
-from .._linearization import solve_moments
-from .._montecarlo import monte_carlo
 from .._parallel import (
     device_mesh,
     fail_together,

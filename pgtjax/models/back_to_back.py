@@ -103,10 +103,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .. import Backlash, ContactLaw, Contacts, System, at_time
 from .. import params as _params
-from .._contact import Backlash, ContactLaw
 from .._deterministic import static_equilibrium as solve_static
-from .._system import Contacts, System, at_time
 from .._validate import check_range
 from . import mesh_stiffness as ms
 

@@ -28,9 +28,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .. import Backlash, Contacts, FourierSeries, System
 from .. import params as _params
-from .._contact import Backlash
-from .._system import Contacts, FourierSeries, System
 from .._validate import check_range
 
 DOF_NAMES = ("y1", "y2", "z")

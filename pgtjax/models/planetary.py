@@ -55,10 +55,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .. import Backlash, Contacts, System, symmetric_eigen
 from .. import params as _params
-from .._contact import Backlash
-from .._modal import symmetric_eigen
-from .._system import Contacts, System, check_count
+from .._system import check_count
 from .._validate import check_range
 from .ring import (
     RingParams,

@@ -60,9 +60,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .. import Observables, System, symmetric_eigen
 from .. import params as _params
-from .._modal import symmetric_eigen
-from .._system import Observables, System, check_count
+from .._system import check_count
 from .._validate import check_range
 from .ring import (
     RingParams,

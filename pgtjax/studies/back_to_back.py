@@ -37,12 +37,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .. import Trajectory, modal_analysis, plots, save_results, simulate
 from .. import params as _params
-from .. import plots
-from .._deterministic import simulate
 from .._files import write_atomic
-from .._modal import modal_analysis
-from .._results import Trajectory, save_results
 from .._summary import write_summary
 from ..models import back_to_back as bb
 from ..models.mesh_stiffness import HARSHA_DEFLECTION_EXP

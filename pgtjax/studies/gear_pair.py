@@ -19,14 +19,20 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from .. import EnergyCriterion, ForceCriterion, plots
+from .. import (
+    EnergyCriterion,
+    ForceCriterion,
+    MomentResult,
+    MonteCarloResult,
+    modal_analysis,
+    monte_carlo,
+    plots,
+    save_results,
+    solve_moments,
+)
 from .._contact import check_criterion
-from .._linearization import solve_moments
-from .._modal import modal_analysis
 from .._montecarlo import check_options as check_monte_carlo_options
-from .._montecarlo import monte_carlo
 from .._parallel import default_chunk_size, local_devices
-from .._results import MomentResult, MonteCarloResult, save_results
 from .._summary import write_summary
 from ..models import gear_pair as gp
 

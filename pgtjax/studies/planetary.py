@@ -23,16 +23,24 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import AbstractCriterion, ForceCriterion, plots
+from .. import (
+    AbstractCriterion,
+    ForceCriterion,
+    MomentResult,
+    MonteCarloResult,
+    Observables,
+    modal_analysis,
+    monte_carlo,
+    plots,
+    save_results,
+    solve_moments,
+    static_equilibrium,
+)
 from .._contact import check_criterion
-from .._deterministic import static_equilibrium
-from .._linearization import solve_moments
-from .._modal import modal_analysis
 from .._montecarlo import check_options as check_monte_carlo_options
-from .._montecarlo import monte_carlo
-from .._results import MomentResult, MonteCarloResult, every_nth_save, save_results
+from .._results import every_nth_save
 from .._summary import write_summary
-from .._system import Observables, check_count
+from .._system import check_count
 from ..models import planetary as pm
 from ..models.ring import ring_interpolation, ring_nodal_inverse, without_supports
 

@@ -53,10 +53,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import plots
-from .._linearization import solve_moments
-from .._montecarlo import monte_carlo
-from .._results import MomentResult, MonteCarloResult, save_results
+from .. import MomentResult, MonteCarloResult, monte_carlo, plots, save_results, solve_moments
 from .._summary import write_summary
 from ..models import ring_moving_load as rml
 from ..models.ring import (
